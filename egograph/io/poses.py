@@ -1,0 +1,69 @@
+"""Per-frame pose files: ``{"<ts>": 4x4 list}`` (row-vector, sensor/rig -> world, metres)."""
+
+from __future__ import annotations
+
+import json
+import warnings
+from pathlib import Path
+
+import numpy as np
+
+from egograph.geometry.hl2ss import pose_validity
+from egograph.io.atomic import atomic_write_text
+from egograph.io.errors import InputError
+
+INVALID_POSE_POLICIES = ("error", "skip")
+
+
+def read_pose_json(path: str | Path, invalid: str = "error") -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Read a pose JSON -> (timestamps int64 sorted numerically, poses (N,4,4), valid (N,) bool).
+
+    ``invalid='error'`` raises on a NaN/singular/non-rigid pose, naming the file and timestamp;
+    ``invalid='skip'`` keeps the frame with ``valid=False`` (pose set to NaN) and warns once.
+    A pose is never silently used when invalid.
+    """
+    path = Path(path)
+    if invalid not in INVALID_POSE_POLICIES:
+        raise ValueError(f"invalid pose policy {invalid!r}; expected one of {INVALID_POSE_POLICIES}")
+    try:
+        data = json.loads(path.read_text())
+    except FileNotFoundError:
+        raise InputError(path, "pose file missing") from None
+    except json.JSONDecodeError as exc:
+        raise InputError(path, f"not valid JSON: {exc.msg}", exc.lineno) from None
+    if not isinstance(data, dict) or not data:
+        raise InputError(path, "expected a non-empty JSON object {timestamp: 4x4 matrix}")
+    keys = []
+    for k in data:
+        try:
+            keys.append((int(k), k))
+        except ValueError:
+            raise InputError(path, f"key {k!r} is not an integer timestamp") from None
+    keys.sort()
+    ts = np.array([k for k, _ in keys], dtype=np.int64)
+    if len(np.unique(ts)) != len(ts):
+        raise InputError(path, "duplicate timestamps (keys equal as integers)")
+    poses = np.full((len(keys), 4, 4), np.nan)
+    for i, (_, k) in enumerate(keys):
+        try:
+            m = np.array(data[k], dtype=np.float64)
+        except (TypeError, ValueError):
+            raise InputError(path, f"pose {k}: not a numeric 4x4 matrix") from None
+        if m.shape != (4, 4):
+            raise InputError(path, f"pose {k}: expected 4x4, got shape {m.shape}")
+        poses[i] = m
+    valid = pose_validity(poses)
+    if not valid.all():
+        bad = [str(t) for t in ts[~valid][:5]]
+        msg = f"{(~valid).sum()} invalid pose(s) (NaN, singular or not rigid), first at {', '.join(bad)}"
+        if invalid == "error":
+            raise InputError(path, msg + "; use --set io.invalid_poses=skip to drop those frames")
+        warnings.warn(f"{path}: {msg}; those frames are marked invalid", stacklevel=2)
+        poses[~valid] = np.nan
+    return ts, poses, valid
+
+
+def write_pose_json(path: str | Path, timestamps: np.ndarray, poses: np.ndarray) -> None:
+    """Write ``{"<ts>": 4x4}`` with full float precision (shortest repr round-trips exactly)."""
+    body = {str(int(t)): np.asarray(p, dtype=np.float64).tolist() for t, p in zip(timestamps, poses)}
+    atomic_write_text(path, json.dumps(body))

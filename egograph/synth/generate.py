@@ -1,0 +1,307 @@
+"""Write a complete synthetic recording in the IT3DEgo layout, with the truth in ``synth_gt/``.
+
+Randomness: one ``SeedSequence(seed)`` spawns an independent stream per part (scene,
+activity, depth noise, pose error, each front-end), so the same seed and config give
+byte-identical output, and changing e.g. the MVPE front-end leaves the scene unchanged.
+"""
+
+from __future__ import annotations
+
+import json
+import time
+from dataclasses import dataclass
+from pathlib import Path
+
+import cv2
+import numpy as np
+from tqdm import tqdm
+
+from egograph import __version__
+from egograph.config import to_dict
+from egograph.geometry.hl2ss import invert_rigid, pv_project, transform_points
+from egograph.io.annotations import (Annotations, Box, CenterAnnotation, MotionInterval, SvoeEnrollment,
+                                     save_annotations)
+from egograph.io.atomic import atomic_dir
+from egograph.io.calibration import PV_SHAPE, write_ahat_calibration, write_pv_calibration
+from egograph.io.detections import Detection, write_detection_dir
+from egograph.io.poses import write_pose_json
+from egograph.synth.config import SynthConfig
+from egograph.synth.frontend import SOURCE_TRUE, FrameView, FrontEnd
+from egograph.synth.scene import Scene, hololens_mesh, make_scene, box_mesh
+from egograph.synth.sensors import (Textures, ahat_camera_rays, build_raycasting_scene, cast, make_calibration,
+                                    object_world_vertices, pose_errors, pv_camera_rays, shade_hits, simulate_ahat)
+from egograph.synth.trajectory import Trajectory, make_trajectory
+
+TS0 = 133_400_000_000_000_000  # a HoloLens-like 100 ns tick count (2023)
+STREAMS = ("scene", "activity", "depth", "pose_error", "svoe", "mvpe", "textures", "mesh")
+
+
+@dataclass
+class SynthResult:
+    root: Path
+    sequence: str
+    frames: int
+    instances: list[str]
+    n_intervals: int
+    n_moves: int
+    seconds: float
+    fps_generation: float
+
+
+def stationary_runs(held: np.ndarray) -> list[tuple[int, int]]:
+    """Inclusive frame ranges where ``held`` is False."""
+    runs, start = [], None
+    for j, h in enumerate(held):
+        if not h and start is None:
+            start = j
+        if h and start is not None:
+            runs.append((start, j - 1))
+            start = None
+    if start is not None:
+        runs.append((start, len(held) - 1))
+    return runs
+
+
+def _project_box(vertices_world: np.ndarray, world_to_pv: np.ndarray, k_pv: np.ndarray,
+                 shape: tuple[int, int]) -> tuple[np.ndarray | None, float]:
+    """Amodal box clipped to the image (x1, y1, x2, y2) and the share of it inside the image."""
+    uv, depth = pv_project(transform_points(vertices_world, world_to_pv), k_pv)
+    if (depth < 0.1).any():
+        return None, 0.0
+    h, w = shape
+    x1, y1 = uv.min(0)
+    x2, y2 = uv.max(0)
+    full = (x2 - x1) * (y2 - y1)
+    cx1, cy1, cx2, cy2 = max(x1, 0), max(y1, 0), min(x2, w - 1), min(y2, h - 1)
+    if cx2 <= cx1 or cy2 <= cy1 or full <= 0:
+        return None, 0.0
+    return np.array([cx1, cy1, cx2, cy2]), float((cx2 - cx1) * (cy2 - cy1) / full)
+
+
+def _clutter_spots(rng: np.random.Generator, scene: Scene, per_instance: int) -> np.ndarray:
+    """Persistent background spots (K, C, 3) on surfaces that resemble each instance."""
+    k = len(scene.objects)
+    out = np.zeros((k, per_instance, 3))
+    for i in range(k):
+        for c in range(per_instance):
+            s = scene.surfaces[int(rng.integers(len(scene.surfaces)))]
+            off = rng.uniform(-1, 1, 2) * s.half_extent
+            out[i, c] = s.center + np.array([off[0], scene.objects[i].size[1] / 2, off[1]])
+    return out
+
+
+def render_mvpe_photos(scene: Scene, textures: Textures, size: int) -> dict[str, list[np.ndarray]]:
+    """25 photos per instance (12 at 30 deg, 12 at 60 deg elevation, 1 top-down) on a grey backdrop."""
+    photos: dict[str, list[np.ndarray]] = {}
+    f = size * 1.2
+    u, v = np.meshgrid(np.arange(size) + 0.5, np.arange(size) + 0.5)
+    dirs_cam = np.stack([(u - size / 2) / f, -(v - size / 2) / f, -np.ones_like(u)], -1).reshape(-1, 3)
+    views = [(30.0, a) for a in range(0, 360, 30)] + [(60.0, a + 15) for a in range(0, 360, 30)] + [(89.0, 0.0)]
+    for k, obj in enumerate(scene.objects):
+        pos = np.zeros((len(scene.objects), 3)) + 1e3
+        pos[k] = 0.0
+        yaw = np.zeros(len(scene.objects))
+        geom = build_raycasting_scene(scene, pos, yaw, None, include_static=False)
+        dist = 2.2 * float(np.linalg.norm(obj.size)) / 2 / np.tan(np.arctan(size / 2 / f))
+        imgs = []
+        for elev, azim in views:
+            e, a = np.radians(elev), np.radians(azim)
+            eye = dist * np.array([np.cos(e) * np.sin(a), np.sin(e), np.cos(e) * np.cos(a)])
+            fwd = -eye / np.linalg.norm(eye)
+            up0 = np.array([0.0, 1.0, 0.0]) if elev < 85 else np.array([0.0, 0.0, -1.0])
+            right = np.cross(fwd, up0)
+            right /= np.linalg.norm(right)
+            up = np.cross(right, fwd)
+            rot = np.stack([right, up, -fwd])  # rows: camera axes in world (row-vector rotation)
+            dirs = dirs_cam @ rot
+            hit = cast(geom, eye, dirs)
+            col = shade_hits(scene, textures, hit, eye, dirs, pos, yaw)
+            col[~np.isfinite(hit["t"])] = 0.55
+            imgs.append((col.reshape(size, size, 3) * 255).astype(np.uint8))
+        photos[obj.name] = imgs
+    return photos
+
+
+def generate(out: str | Path, cfg: SynthConfig, seed: int, progress: bool = True) -> SynthResult:
+    """Generate one recording into ``out`` (replaced atomically when complete)."""
+    t_start = time.perf_counter()
+    out = Path(out)
+    rngs = dict(zip(STREAMS, (np.random.default_rng(s) for s in np.random.SeedSequence(seed).spawn(len(STREAMS)))))
+    scene = make_scene(rngs["scene"], cfg.scene)
+    traj = make_trajectory(rngs["activity"], scene, cfg)
+    ahat_cal, pv_cal = make_calibration(cfg.ahat, cfg.pv)
+    n, k = cfg.frames, len(scene.objects)
+    fps = cfg.fps
+    ts = TS0 + seed * 10**11 + np.round(np.arange(n) * 1e7 / fps).astype(np.int64)
+
+    # True poses: PV at frame times, AHAT rig pose a few ms later (different sensor clock).
+    rng_d = rngs["depth"]
+    depth_offset = (cfg.ahat.time_offset_ms + rng_d.normal(0, 1.0, n)) / 1000.0 * fps  # in frames
+    rig_pv = traj.rig_poses(np.arange(n, dtype=float))
+    rig_depth = traj.rig_poses(np.arange(n) + depth_offset)
+    pv_cam_to_rig = invert_rigid(pv_cal.extrinsics)
+    pv_true = pv_cam_to_rig @ rig_pv
+    depth_true = rig_depth
+    ang_speed = traj.angular_speed_dps()
+    errs, jumps = pose_errors(rngs["pose_error"], n, fps, ang_speed, cfg.pose_error,
+                              pivot=np.array([scene.room_size[0] / 2, 1.0, scene.room_size[1] / 2]))
+    pv_rep = pv_true @ errs
+    depth_rep = depth_true @ errs
+
+    clutter = _clutter_spots(rngs["scene"], scene, max(cfg.detections.svoe.clutter_per_instance,
+                                                        cfg.detections.mvpe.clutter_per_instance))
+    twins = np.array([o.twin for o in scene.objects])
+    frontends = {name: FrontEnd(rngs[name], getattr(cfg.detections, name), twins, PV_SHAPE) for name in ("svoe", "mvpe")}
+    textures = Textures(rngs["textures"])
+
+    ahat_dirs, ahat_norms = ahat_camera_rays(ahat_cal)
+    ahat_cam_to_rig = invert_rigid(ahat_cal.extrinsics)
+    ds = cfg.pv.visibility_downsample
+    vis_dirs, vis_shape = pv_camera_rays(pv_cal, ds)
+    rgb_dirs, rgb_shape = pv_camera_rays(pv_cal, 1) if cfg.pv.rgb else (None, None)
+    k_pv = pv_cal.intrinsics
+
+    visible = np.zeros((n, k))
+    boxes = np.full((n, k, 4), np.nan)
+    detections: dict[str, dict[int, list[Detection]]] = {s: {} for s in frontends}
+    det_truth: dict[str, list[str]] = {s: [] for s in frontends}
+    bbox_annot: dict[int, list[tuple[int, Box]]] = {i: [] for i in range(k)}
+    svoe: dict[int, SvoeEnrollment] = {}
+    clutter_half = np.array([o.size for o in scene.objects]) / 2
+
+    with atomic_dir(out) as tmp:
+        seq_dir = tmp / cfg.sequence
+        (seq_dir / "pv").mkdir(parents=True)
+        (seq_dir / "depth_ahat").mkdir()
+        png_rgb = [cv2.IMWRITE_PNG_COMPRESSION, cfg.pv.png_compression]
+        png_depth = [cv2.IMWRITE_PNG_COMPRESSION, 1]
+        for i in tqdm(range(n), desc=f"synth {cfg.sequence}", unit="frame", disable=not progress, mininterval=1.0):
+            obj_pos, obj_yaw = traj.objects_at(i)
+            hand, hand_on = traj.hand_at(i)
+            geom = build_raycasting_scene(scene, obj_pos, obj_yaw, hand if hand_on else None)
+            geom_alone = build_raycasting_scene(scene, obj_pos, obj_yaw, None, include_static=False)
+            pose = pv_true[i]
+            origin = pose[3, :3]
+            dirs = vis_dirs @ pose[:3, :3]
+            hit = cast(geom, origin, dirs)
+            alone = cast(geom_alone, origin, dirs)
+            seen = np.bincount(hit["geom"][hit["geom"] != 0xFFFFFFFF].astype(np.int64), minlength=k + 2)[1:k + 1]
+            full = np.bincount(alone["geom"][alone["geom"] != 0xFFFFFFFF].astype(np.int64), minlength=k + 2)[1:k + 1]
+            world_to_pv = invert_rigid(pose)
+            for j in range(k):
+                box, inside = _project_box(object_world_vertices(scene, j, obj_pos[j], obj_yaw[j]), world_to_pv, k_pv, PV_SHAPE)
+                if box is None or full[j] == 0:
+                    continue
+                boxes[i, j] = box
+                visible[i, j] = min(1.0, seen[j] / full[j]) * inside
+            # Clutter spots: seen where the static surface at their pixel is at their depth.
+            cb = np.full(clutter.shape[:2] + (4,), np.nan)
+            uv, dep = pv_project(transform_points(clutter.reshape(-1, 3), world_to_pv), k_pv)
+            px = np.floor(uv / ds).astype(int)
+            inimg = (dep > 0.2) & (px[:, 0] >= 0) & (px[:, 0] < vis_shape[1]) & (px[:, 1] >= 0) & (px[:, 1] < vis_shape[0])
+            for m in np.flatnonzero(inimg):
+                idx = px[m, 1] * vis_shape[1] + px[m, 0]
+                if hit["geom"][idx] == 0 and abs(hit["t"][idx] - dep[m]) < 0.2:
+                    a, c = divmod(m, clutter.shape[1])
+                    v, _ = box_mesh(clutter[a, c], clutter_half[a] * 2)
+                    b, _ = _project_box(v, world_to_pv, k_pv, PV_SHAPE)
+                    if b is not None:
+                        cb[a, c] = b
+            motion = np.where(traj.held[i], 0.3 * ang_speed[i] + 20.0, ang_speed[i])
+            view = FrameView(visible[i], boxes[i], motion, cb)
+            for name, fe in frontends.items():
+                cands = fe.frame(view)
+                detections[name][int(ts[i])] = [Detection(c.instance, Box(*map(float, c.box)), c.score) for c in cands]
+                det_truth[name] += [f"{ts[i]} {c.instance} {int(c.source != SOURCE_TRUE)} {c.source} {c.source_id}" for c in cands]
+            # Annotations: amodal boxes every stride-th frame when at least a quarter visible.
+            for j in range(k):
+                if not np.isfinite(boxes[i, j, 0]):
+                    continue
+                b = np.round(boxes[i, j])
+                if i % cfg.annotation_stride == 0 and visible[i, j] >= 0.25:
+                    bbox_annot[j].append((int(ts[i]), Box(*map(float, b))))
+                if j not in svoe and visible[i, j] >= 0.95 and (b[2] - b[0]) * (b[3] - b[1]) >= 500:
+                    svoe[j] = SvoeEnrollment(j, int(ts[i]), Box(*map(float, b)))
+            # AHAT depth at its own capture time.
+            fd = i + depth_offset[i]
+            obj_d, yaw_d = traj.objects_at(fd)
+            hand_d, hand_d_on = traj.hand_at(fd)
+            geom_d = build_raycasting_scene(scene, obj_d, yaw_d, hand_d if hand_d_on else None)
+            raw = simulate_ahat(rng_d, scene, geom_d, ahat_cam_to_rig @ rig_depth[i], ahat_dirs, ahat_norms, cfg.ahat)
+            cv2.imwrite(str(seq_dir / "depth_ahat" / f"{ts[i]}.png"), raw, png_depth)
+            if cfg.pv.rgb:
+                d = rgb_dirs @ pose[:3, :3]
+                col = shade_hits(scene, textures, cast(geom, origin, d), origin, d, obj_pos, obj_yaw)
+                img = (col.reshape(rgb_shape + (3,)) * 255).astype(np.uint8)
+                cv2.imwrite(str(seq_dir / "pv" / f"{ts[i]}.png"), cv2.cvtColor(img, cv2.COLOR_RGB2BGR), png_rgb)
+
+        _write_outputs(tmp, cfg, seed, scene, traj, ts, pv_rep, depth_rep, pv_true, depth_true, ahat_cal, pv_cal,
+                       visible, boxes, detections, det_truth, bbox_annot, svoe, jumps, depth_offset, rngs, textures)
+    seconds = time.perf_counter() - t_start
+    n_int = sum(len(stationary_runs(traj.held[:, j])) for j in range(k))
+    return SynthResult(out, cfg.sequence, n, [o.name for o in scene.objects], n_int, len(traj.moves), seconds, n / seconds)
+
+
+def _write_outputs(tmp: Path, cfg: SynthConfig, seed: int, scene: Scene, traj: Trajectory, ts: np.ndarray,
+                   pv_rep, depth_rep, pv_true, depth_true, ahat_cal, pv_cal, visible, boxes, detections, det_truth,
+                   bbox_annot, svoe, jumps, depth_offset, rngs, textures) -> None:
+    import open3d as o3d
+
+    seq = cfg.sequence
+    seq_dir = tmp / seq
+    k = len(scene.objects)
+    write_pose_json(seq_dir / "pv_pose.json", ts, pv_rep)
+    write_pose_json(seq_dir / "depth_ahat_pose.json", ts, depth_rep)
+    (seq_dir / "mesh").mkdir()
+    mesh = hololens_mesh(rngs["mesh"], scene, cfg.scene)
+    o3d.io.write_triangle_mesh(str(seq_dir / "mesh" / "scene.ply"), mesh, write_ascii=False)
+    write_ahat_calibration(tmp / "calibrations" / "rm_depth_ahat", ahat_cal)
+    write_pv_calibration(tmp / "calibrations" / "personal_video", pv_cal)
+
+    # Annotations exactly like the real ones.
+    centers, motion, intervals = [], [], []
+    for j in range(k):
+        for loc, (a, b) in enumerate(stationary_runs(traj.held[:, j])):
+            xyz = tuple(float(x) for x in traj.obj_pos[a, j])
+            centers.append(CenterAnnotation(int(ts[a]), int(ts[b]), j, xyz, loc))
+            motion.append(MotionInterval(j, int(ts[a]), int(ts[b])))
+            intervals.append({"instance": j, "name": scene.objects[j].name, "location_id": loc,
+                              "frame_start": a, "frame_end": b, "t_start": int(ts[a]), "t_end": int(ts[b]), "xyz": list(xyz)})
+    ann = Annotations(labels=[o.name for o in scene.objects], centers=centers, motion=motion,
+                      boxes={j: rows for j, rows in bbox_annot.items() if rows}, svoe=[svoe[j] for j in sorted(svoe)])
+    save_annotations(tmp / "annotations" / seq, ann)
+    for name, per_frame in detections.items():
+        write_detection_dir(tmp / "detections" / seq / name, per_frame)
+
+    # MVPE enrollment photos.
+    for name, imgs in render_mvpe_photos(scene, textures, cfg.mvpe_photo_size).items():
+        d = tmp / "mvpe" / seq / name
+        d.mkdir(parents=True)
+        for m, img in enumerate(imgs):
+            cv2.imwrite(str(d / f"{m:02d}.jpg"), cv2.cvtColor(img, cv2.COLOR_RGB2BGR), [cv2.IMWRITE_JPEG_QUALITY, 92])
+
+    # The truth.
+    gt = tmp / "synth_gt" / seq
+    gt.mkdir(parents=True)
+    write_pose_json(gt / "pv_pose.json", ts, pv_true)
+    write_pose_json(gt / "depth_ahat_pose.json", ts, depth_true)
+    np.savez_compressed(gt / "instances.npz", timestamps=ts, positions=traj.obj_pos.astype(np.float64),
+                        moving=traj.held, visible=visible.astype(np.float32), boxes=boxes.astype(np.float32),
+                        depth_offset_s=(depth_offset / cfg.fps).astype(np.float64))
+    (gt / "intervals.json").write_text(json.dumps(intervals, indent=1))
+    for name, lines in det_truth.items():
+        (gt / f"detections_{name}.txt").write_text(
+            "# ts instance is_false source source_id  (source: true|twin|other|clutter)\n" + "\n".join(lines) + ("\n" if lines else ""))
+    meta = {
+        "objects": [{"name": o.name, "shape": o.shape, "size": o.size.tolist(), "color": o.color.tolist(),
+                     "albedo": o.albedo, "twin": o.twin} for o in scene.objects],
+        "surfaces": [{"name": s.name, "center": s.center.tolist()} for s in scene.surfaces],
+        "moves": [{"instance": m.instance, "pick_frame": m.pick_frame, "place_frame": m.place_frame,
+                   "src": m.src.tolist(), "dst": m.dst.tolist()} for m in traj.moves],
+        "relocalisation_jump_frames": [int(j) for j in jumps],
+    }
+    (gt / "scene.json").write_text(json.dumps(meta, indent=1))
+    (tmp / "recording.json").write_text(json.dumps({
+        "generator": "egograph.synth", "version": __version__, "seed": seed, "sequence": seq,
+        "frames": cfg.frames, "detection_sets": sorted(detections), "primary_detections": cfg.detections.primary,
+        "config": to_dict(cfg)}, indent=1))
