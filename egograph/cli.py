@@ -1,0 +1,344 @@
+"""``egograph`` command line: one sub-command per use.
+
+    egograph synth OUT --config configs/synth/svoe.yaml --seed 1 --frames 3000
+    egograph info REC
+    egograph lift REC --detections svoe --out OBS.npz
+    egograph track REC --tracker memory|kf --detections svoe --out RESULTS
+    egograph eval REC RESULTS [--json OUT]
+    egograph compare REC RESULTS_A RESULTS_B ... [--out DIR]
+    egograph demo [OUT]
+
+Bad input ends with one line naming the file (and line) and exit code 2.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+import time
+import warnings
+from pathlib import Path
+
+from egograph.config import ConfigError, describe, load_config
+
+REPO = Path(__file__).resolve().parents[1]
+DEFAULT_CONFIG = REPO / "configs" / "default.yaml"
+
+
+def _console():
+    from rich.console import Console
+
+    return Console()
+
+
+def _add_config_args(p: argparse.ArgumentParser, default: Path | None) -> None:
+    p.add_argument("--config", type=Path, default=default, help=f"YAML config (default: {default})")
+    p.add_argument("--set", dest="overrides", action="append", default=[], metavar="KEY=VALUE",
+                   help="override a config knob (dotted key), e.g. --set lift.mode=reference; repeatable")
+    p.add_argument("--show-config", action="store_true", help="print every knob with its value and documentation, then exit")
+
+
+def _add_rec_args(p: argparse.ArgumentParser) -> None:
+    p.add_argument("rec", type=Path, help="recording: a sequence folder, or a root holding one (as `egograph synth` writes)")
+    p.add_argument("--sequence", help="sequence name when REC holds several")
+    p.add_argument("--calibration", type=Path, help="calibrations/ folder when not found beside/above the recording")
+    p.add_argument("--annotations", type=Path, help="annotation folder when not found beside the recording")
+
+
+def _pipeline_config(args):
+    from egograph.settings import EgographConfig
+
+    return load_config(EgographConfig, args.config, args.overrides)
+
+
+def _show_config(cfg) -> None:
+    from rich.table import Table
+
+    t = Table(title="configuration")
+    for col in ("knob", "value", "meaning"):
+        t.add_column(col)
+    for key, value, doc in describe(cfg):
+        t.add_row(key, repr(value), doc)
+    _console().print(t)
+
+
+def _open(args, cfg):
+    from egograph.pipeline import open_recording
+
+    return open_recording(args.rec, cfg, calibration=args.calibration, annotations=args.annotations,
+                          sequence=args.sequence)
+
+
+# ------------------------------------------------------------------ sub-commands
+
+def cmd_synth(args) -> int:
+    from egograph.synth.config import SynthConfig
+    from egograph.synth.generate import generate
+
+    overrides = list(args.overrides)
+    if args.frames is not None:
+        overrides.append(f"frames={args.frames}")
+    cfg = load_config(SynthConfig, args.config, overrides)
+    if args.show_config:
+        _show_config(cfg)
+        return 0
+    r = generate(args.out, cfg, seed=args.seed, progress=not args.quiet)
+    _console().print(f"wrote {r.root} ({r.frames} frames, {len(r.instances)} instances, {r.n_moves} moves, "
+                     f"{r.n_intervals} stationary intervals) in {r.seconds:.1f} s ({r.fps_generation:.1f} frames/s)")
+    if not args.quiet:
+        cmd_info(argparse.Namespace(rec=args.out, sequence=None, calibration=None, annotations=None, json=None,
+                                    config=DEFAULT_CONFIG, overrides=[], show_config=False))
+    return 0
+
+
+def cmd_info(args) -> int:
+    from egograph.io.summary import print_summary, summarize
+
+    cfg = _pipeline_config(args)
+    rec = _open(args, cfg)
+    s = summarize(rec)
+    print_summary(s, _console())
+    if args.json:
+        from egograph.io.atomic import atomic_write_text
+
+        atomic_write_text(args.json, json.dumps(s, indent=1))
+    return 0
+
+
+def cmd_lift(args) -> int:
+    from egograph.pipeline import lift
+
+    cfg = _pipeline_config(args)
+    if args.lift:
+        cfg.lift.mode = args.lift
+    if args.show_config:
+        _show_config(cfg)
+        return 0
+    rec = _open(args, cfg)
+    t0 = time.perf_counter()
+    obs, report = lift(rec, args.detections, cfg, progress=not args.quiet)
+    dt = time.perf_counter() - t0
+    obs.save(args.out)
+    if args.lifted_dir:
+        from egograph.geometry.lift import write_lifted_dir
+
+        write_lifted_dir(args.lifted_dir, obs, rec.timestamps)
+    con = _console()
+    con.print(f"lifted {int(obs.valid.sum())} of {len(obs)} detections ({cfg.lift.mode} mode) in {dt:.1f} s -> {args.out}")
+    con.print(report.summary())
+    return 0
+
+
+def cmd_track(args) -> int:
+    from egograph.pipeline import evaluate, lift, track, write_results
+    from egograph.geometry.observations import Observations
+
+    cfg = _pipeline_config(args)
+    if args.lift:
+        cfg.lift.mode = args.lift
+    if args.show_config:
+        _show_config(cfg)
+        return 0
+    rec = _open(args, cfg)
+    con = _console()
+    t0 = time.perf_counter()
+    if args.observations:
+        obs = Observations.load(args.observations)
+    else:
+        obs, report = lift(rec, args.detections, cfg, progress=not args.quiet)
+        con.print(report.summary())
+    t1 = time.perf_counter()
+    per_frame = track(rec, args.tracker, obs, cfg)
+    t2 = time.perf_counter()
+    write_results(args.out, rec, per_frame)
+    n_pred = sum(len(v) for v in per_frame.values())
+    con.print(f"{args.tracker}: {n_pred} predictions over {len(rec)} frames -> {args.out} "
+              f"(lift {t1 - t0:.1f} s, track {t2 - t1:.2f} s)")
+    if args.eval and rec.annotation_dir is not None:
+        evaluate(rec, args.out).print(con)
+    return 0
+
+
+def cmd_eval(args) -> int:
+    from egograph.pipeline import evaluate
+
+    cfg = _pipeline_config(args)
+    rec = _open(args, cfg)
+    report = evaluate(rec, args.results)
+    report.print(_console(), per_instance=args.per_instance)
+    if report.frames_without_file:
+        _console().print(f"[yellow]{report.frames_without_file} frames had no results file (counted as no prediction)")
+    if args.json:
+        report.write_json(args.json)
+    if args.markdown:
+        report.write_markdown(args.markdown)
+    if args.csv:
+        report.write_csv(args.csv)
+    if args.plot:
+        from egograph.eval.report import plot_pr
+
+        plot_pr({Path(args.results).name: report}, args.plot)
+    return 0
+
+
+def cmd_compare(args) -> int:
+    from egograph.eval.report import comparison_table, plot_pr
+    from egograph.io.atomic import atomic_write_text
+    from egograph.pipeline import evaluate
+
+    cfg = _pipeline_config(args)
+    rec = _open(args, cfg)
+    names = args.names.split(",") if args.names else [Path(r).name for r in args.results]
+    if len(names) != len(args.results) or len(set(names)) != len(names):
+        raise ConfigError("--names must give one distinct name per results folder")
+    reports = {n: evaluate(rec, r) for n, r in zip(names, args.results)}
+    baseline = args.baseline if args.baseline in reports else None
+    md, csv = comparison_table(reports, baseline=baseline)
+    print(md)
+    if args.out:
+        out = Path(args.out)
+        out.mkdir(parents=True, exist_ok=True)
+        atomic_write_text(out / "comparison.md", md)
+        atomic_write_text(out / "comparison.csv", csv)
+        atomic_write_text(out / "comparison.json", json.dumps({n: r.to_json_dict() for n, r in reports.items()}, indent=1))
+        plot_pr(reports, out / "comparison.png")
+        _console().print(f"wrote {out}/comparison.{{md,csv,json,png}}")
+    return 0
+
+
+def cmd_demo(args) -> int:
+    """The main job on the embedded default: generate, lift, track with the baselines, evaluate."""
+    import tempfile
+
+    from egograph.eval.report import comparison_table
+    from egograph.pipeline import evaluate, lift, track, write_results
+    from egograph.synth.config import SynthConfig
+    from egograph.synth.generate import generate
+
+    con = _console()
+    out = Path(args.out) if args.out else Path(tempfile.mkdtemp(prefix="egograph-demo-"))
+    scfg = load_config(SynthConfig, REPO / "configs" / "synth" / "svoe.yaml",
+                       [f"frames={args.frames}", "pv.rgb=false", *args.overrides])
+    rec_dir = out / "recording"
+    if not (rec_dir / "recording.json").exists() or args.regenerate:
+        con.rule("1. synthetic recording")
+        r = generate(rec_dir, scfg, seed=args.seed)
+        con.print(f"generated {r.frames} frames in {r.seconds:.1f} s ({r.fps_generation:.1f} frames/s)")
+    cmd_info(argparse.Namespace(rec=rec_dir, sequence=None, calibration=None, annotations=None, json=None,
+                                config=DEFAULT_CONFIG, overrides=[], show_config=False))
+    cfg = load_config(__import__("egograph.settings", fromlist=["EgographConfig"]).EgographConfig, DEFAULT_CONFIG)
+    from egograph.pipeline import open_recording
+
+    rec = open_recording(rec_dir, cfg)
+    reports = {}
+    for det_set in ("svoe", "mvpe"):
+        for mode in ("reference", "robust"):
+            cfg.lift.mode = mode
+            con.rule(f"2. {det_set.upper()}: lift ({mode})")
+            obs, rep = lift(rec, det_set, cfg)
+            con.print(rep.summary())
+            for tracker in ("memory", "kf"):
+                res = out / "results" / f"{det_set}_{tracker}_{mode}"
+                write_results(res, rec, track(rec, tracker, obs, cfg))
+                reports[f"{det_set} {tracker} ({mode} lift)"] = evaluate(rec, res)
+    con.rule("3. IT3DEgo evaluation (all frames)")
+    for det_set in ("svoe", "mvpe"):
+        sub = {k: v for k, v in reports.items() if k.startswith(det_set)}
+        md, _ = comparison_table(sub, baseline=f"{det_set} kf (reference lift)")
+        con.print(f"[bold]{det_set.upper()}[/bold]")
+        print(md)
+    con.print(f"outputs under {out}")
+    return 0
+
+
+# ------------------------------------------------------------------ parser
+
+def build_parser() -> argparse.ArgumentParser:
+    p = argparse.ArgumentParser(prog="egograph", description="Offline factor-graph tracking of object instances in "
+                                "egocentric HoloLens 2 recordings (IT3DEgo layout).")
+    sub = p.add_subparsers(dest="command", required=True)
+
+    s = sub.add_parser("synth", help="generate a synthetic recording in the IT3DEgo layout (truth in synth_gt/)")
+    s.add_argument("out", type=Path)
+    s.add_argument("--seed", type=int, default=1)
+    s.add_argument("--frames", type=int)
+    s.add_argument("--quiet", action="store_true")
+    _add_config_args(s, REPO / "configs" / "synth" / "svoe.yaml")
+    s.set_defaults(func=cmd_synth)
+
+    s = sub.add_parser("info", help="summarise a recording (frames, instances, intervals, pose error vs synth_gt)")
+    _add_rec_args(s)
+    s.add_argument("--json", type=Path, help="also write the summary as JSON")
+    _add_config_args(s, DEFAULT_CONFIG)
+    s.set_defaults(func=cmd_info)
+
+    s = sub.add_parser("lift", help="lift 2D detections to 3D observations")
+    _add_rec_args(s)
+    s.add_argument("--detections", required=True, help="folder of per-frame detection files, or a set name (svoe, mvpe)")
+    s.add_argument("--out", required=True, type=Path, help="observations file (.npz)")
+    s.add_argument("--lift", choices=["reference", "robust"], help="lifting mode (default from config: robust)")
+    s.add_argument("--lifted-dir", type=Path, help="also write per-frame lifted points (instance x y z score)")
+    s.add_argument("--quiet", action="store_true")
+    _add_config_args(s, DEFAULT_CONFIG)
+    s.set_defaults(func=cmd_lift)
+
+    s = sub.add_parser("track", help="track instances; writes per-frame results (instance x y z score)")
+    _add_rec_args(s)
+    s.add_argument("--tracker", required=True, help="memory | kf")
+    s.add_argument("--detections", default="svoe", help="folder of per-frame detection files, or a set name (svoe, mvpe)")
+    s.add_argument("--observations", type=Path, help="use lifted observations (.npz from `egograph lift`) instead")
+    s.add_argument("--out", required=True, type=Path, help="results folder (one file per PV frame)")
+    s.add_argument("--lift", choices=["reference", "robust"])
+    s.add_argument("--eval", action="store_true", help="evaluate the results against the annotations")
+    s.add_argument("--quiet", action="store_true")
+    _add_config_args(s, DEFAULT_CONFIG)
+    s.set_defaults(func=cmd_track)
+
+    s = sub.add_parser("eval", help="IT3DEgo metrics of a results folder")
+    _add_rec_args(s)
+    s.add_argument("results", type=Path)
+    s.add_argument("--json", type=Path)
+    s.add_argument("--markdown", type=Path)
+    s.add_argument("--csv", type=Path)
+    s.add_argument("--plot", type=Path, help="PNG of precision/recall against threshold")
+    s.add_argument("--per-instance", action="store_true")
+    _add_config_args(s, DEFAULT_CONFIG)
+    s.set_defaults(func=cmd_eval)
+
+    s = sub.add_parser("compare", help="several results folders against one ground truth, in the paper's table layout")
+    _add_rec_args(s)
+    s.add_argument("results", nargs="+", type=Path)
+    s.add_argument("--names", help="comma-separated row names (default: folder names)")
+    s.add_argument("--baseline", default="kf", help="row to give ratios against (default: kf, when present)")
+    s.add_argument("--out", type=Path)
+    _add_config_args(s, DEFAULT_CONFIG)
+    s.set_defaults(func=cmd_compare)
+
+    s = sub.add_parser("demo", help="generate a synthetic recording, lift, track with the baselines, evaluate")
+    s.add_argument("out", nargs="?", help="output folder (default: a new temporary folder)")
+    s.add_argument("--frames", type=int, default=900)
+    s.add_argument("--seed", type=int, default=1)
+    s.add_argument("--regenerate", action="store_true")
+    s.add_argument("--set", dest="overrides", action="append", default=[], metavar="KEY=VALUE",
+                   help="override a synthetic-recording knob")
+    s.set_defaults(func=cmd_demo)
+    return p
+
+
+def main(argv: list[str] | None = None) -> int:
+    from egograph.io.errors import InputError
+
+    args = build_parser().parse_args(argv)
+    warnings.simplefilter("default")
+    try:
+        return int(args.func(args) or 0)
+    except (InputError, ConfigError) as exc:
+        print(f"egograph: error: {exc}", file=sys.stderr)
+        return 2
+    except KeyboardInterrupt:
+        return 130
+
+
+if __name__ == "__main__":
+    sys.exit(main())

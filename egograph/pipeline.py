@@ -1,0 +1,67 @@
+"""Glue between the stages: open a recording, lift its detections, run a tracker, evaluate.
+
+The CLI and the benchmarks in ``tools/`` call these, so both run the same code.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+from egograph.eval.loader import evaluate_loaded, load_sequence
+from egograph.eval.report import EvalReport
+from egograph.io.detections import read_detection_dir, write_results_dir
+from egograph.io.errors import InputError
+from egograph.io.recording import Recording
+from egograph.settings import EgographConfig
+
+
+def open_recording(path: str | Path, cfg: EgographConfig, *, calibration: str | Path | None = None,
+                   annotations: str | Path | None = None, sequence: str | None = None) -> Recording:
+    return Recording.open(path, sequence=sequence, calibration=calibration, annotations=annotations,
+                          invalid_poses=cfg.io.invalid_poses, depth_factor=cfg.io.depth_factor or None)
+
+
+def n_instances(rec: Recording) -> int | None:
+    from egograph.io.annotations import read_labels
+
+    if rec.annotation_dir is None:
+        return None
+    return len(read_labels(rec.annotation_dir / "labels.csv"))
+
+
+def load_detections(rec: Recording, spec: str | Path, cfg: EgographConfig) -> dict:
+    """Per-frame detections from a folder or a set name the recording carries (``svoe``, ``mvpe``)."""
+    return read_detection_dir(rec.detections_dir(str(spec)), rec.timestamps, box_format=cfg.io.box_format)
+
+
+def lift(rec: Recording, spec: str | Path, cfg: EgographConfig, progress: bool = True):
+    """Detections -> (Observations, LiftReport) with ``cfg.lift``."""
+    from egograph.geometry.lift import lift_recording
+
+    dets = load_detections(rec, spec, cfg)
+    return lift_recording(rec, dets, cfg.lift, progress=progress, n_instances=n_instances(rec))
+
+
+def track(rec: Recording, tracker: str, obs, cfg: EgographConfig) -> dict:
+    """Run a named tracker on observations -> per-frame predictions {ts: [Prediction]}."""
+    from egograph.track.baselines import TRACKERS
+
+    if tracker not in TRACKERS:
+        raise ValueError(f"unknown tracker {tracker!r}; available: {', '.join(sorted(TRACKERS))}")
+    return TRACKERS[tracker](obs, rec.timestamps, cfg.track)
+
+
+def write_results(out: str | Path, rec: Recording, per_frame: dict) -> None:
+    write_results_dir(out, per_frame, [int(t) for t in rec.timestamps])
+
+
+def evaluate(rec: Recording, results_dir: str | Path) -> EvalReport:
+    """IT3DEgo metrics of one results folder against the recording's annotations."""
+    if rec.annotation_dir is None:
+        raise InputError(rec.seq_dir, "no annotations found (labels.csv, 3d_center_annot.txt); pass --annotations DIR")
+    seq = load_sequence(rec.seq_dir / "pv_pose.json", rec.annotation_dir / "3d_center_annot.txt", results_dir,
+                        rec.annotation_dir / "labels.csv")
+    result, intervals = evaluate_loaded(seq)
+    report = EvalReport()
+    report.add(rec.name, result, intervals, seq.labels, getattr(seq.predictions, "frames_without_file", 0))
+    return report

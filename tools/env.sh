@@ -1,0 +1,30 @@
+#!/usr/bin/env bash
+# Create or reuse .venv and install egograph with everything it needs (sourced by demo.sh/test.sh).
+# Re-installs only when setup.cfg changes. Installs Open3D's system library (libusb-1.0-0) when missing.
+set -euo pipefail
+REPO="$(cd "$(dirname "${BASH_SOURCE[0]}")/.." && pwd)"
+PY="${PYTHON:-python3.11}"
+command -v "$PY" >/dev/null 2>&1 || PY=python3
+"$PY" -c 'import sys; sys.exit(0 if sys.version_info[:2] >= (3, 11) else 1)' || {
+  echo "egograph needs Python 3.11 or newer (found: $("$PY" --version 2>&1))" >&2; exit 1; }
+
+if ! ldconfig -p 2>/dev/null | grep -q 'libusb-1.0.so.0'; then
+  if [ "$(id -u)" = 0 ] && command -v apt-get >/dev/null 2>&1; then
+    echo "installing libusb-1.0-0 (needed by Open3D)..." >&2
+    (apt-get update -qq && DEBIAN_FRONTEND=noninteractive apt-get install -y -qq libusb-1.0-0) >&2
+  else
+    echo "Open3D needs the system library libusb-1.0: run 'sudo apt-get install libusb-1.0-0'" >&2; exit 1
+  fi
+fi
+
+VENV="$REPO/.venv"
+[ -x "$VENV/bin/python" ] || "$PY" -m venv "$VENV"
+STAMP="$VENV/.egograph-installed"
+WANT="$(sha256sum "$REPO/setup.cfg" "$REPO/pyproject.toml" | sha256sum | cut -d' ' -f1)"
+if [ ! -f "$STAMP" ] || [ "$(cat "$STAMP")" != "$WANT" ] || ! "$VENV/bin/python" -c 'import egograph' 2>/dev/null; then
+  echo "installing egograph and its dependencies into $VENV ..." >&2
+  "$VENV/bin/python" -m pip install -q --upgrade pip >&2
+  "$VENV/bin/python" -m pip install -q -e "$REPO[test]" >&2
+  echo "$WANT" > "$STAMP"
+fi
+export PATH="$VENV/bin:$PATH"
