@@ -83,6 +83,12 @@ def cmd_synth(args) -> int:
     if args.show_config:
         _show_config(cfg)
         return 0
+    if args.redetect:
+        from egograph.synth.generate import redetect
+
+        counts = redetect(args.out, cfg)
+        _console().print(f"re-simulated detections in {args.out}: " + ", ".join(f"{k} {v}" for k, v in counts.items()))
+        return 0
     r = generate(args.out, cfg, seed=args.seed, progress=not args.quiet)
     _console().print(f"wrote {r.root} ({r.frames} frames, {len(r.instances)} instances, {r.n_moves} moves, "
                      f"{r.n_intervals} stationary intervals) in {r.seconds:.1f} s ({r.fps_generation:.1f} frames/s)")
@@ -264,6 +270,8 @@ def build_parser() -> argparse.ArgumentParser:
     s.add_argument("--seed", type=int, default=1)
     s.add_argument("--frames", type=int)
     s.add_argument("--quiet", action="store_true")
+    s.add_argument("--redetect", action="store_true",
+                   help="only re-simulate the detection sets of an existing recording OUT with this config's front-ends")
     _add_config_args(s, REPO / "configs" / "synth" / "svoe.yaml")
     s.set_defaults(func=cmd_synth)
 

@@ -150,3 +150,24 @@ def test_frontend_scores_overlap_and_degrade():
     assert ((sc > 0.6) & (src != "true")).sum() > 20 and ((sc < 0.6) & (src == "true")).sum() > 20
     assert (src == "twin").sum() > 20  # the look-alike pair confuses the matcher
     assert hits["blurred"] < 0.6 * hits["sharp"]
+
+
+def test_redetect_reproduces_and_changes_only_detections(tmp_path):
+    from egograph.config import load_config
+    from egograph.synth.config import SynthConfig
+    from egograph.synth.generate import redetect
+
+    from conftest import TINY
+
+    root = make_recording(tmp_path / "r", 5, "frames=40", "pv.rgb=false", "mvpe_photo_size=32")
+    before = tree_digest(root)
+    det = root / "detections" / "tiny_seq" / "svoe"
+    redetect(root, load_config(SynthConfig, TINY))  # same front-end: same detections
+    assert tree_digest(det) == tree_digest(make_recording(tmp_path / "s", 5, "frames=40", "pv.rgb=false",
+                                                          "mvpe_photo_size=32") / "detections" / "tiny_seq" / "svoe")
+    depth_before = tree_digest(root / "tiny_seq")
+    n = redetect(root, load_config(SynthConfig, TINY, ["detections.svoe.detect_rate=0.0",
+                                                       "detections.svoe.clutter_rate=0.0"]))
+    assert n["svoe"] <= sum(1 for _ in det.glob("*.txt"))  # only "other" matches can remain
+    assert tree_digest(root / "tiny_seq") == depth_before
+    assert tree_digest(root) != before

@@ -99,7 +99,8 @@ def ahat_raw_to_range(raw: np.ndarray, scale: float, depth_factor: float) -> np.
 
 def ahat_range_to_raw(range_m: np.ndarray, scale: float, depth_factor: float) -> np.ndarray:
     """Range along the ray (metres, already wrapped) -> raw AHAT units (uint16, rounded)."""
-    raw = np.rint(np.asarray(range_m, dtype=np.float64) * (scale / depth_factor))
+    r = np.asarray(range_m)
+    raw = np.rint(r * r.dtype.type(scale / depth_factor)) if r.dtype.kind == "f" else np.rint(r * (scale / depth_factor))
     return np.clip(raw, 0, np.iinfo(np.uint16).max).astype(np.uint16)
 
 

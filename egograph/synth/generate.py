@@ -21,7 +21,7 @@ from egograph.config import to_dict
 from egograph.geometry.hl2ss import invert_rigid, pv_project, transform_points
 from egograph.io.annotations import (Annotations, Box, CenterAnnotation, MotionInterval, SvoeEnrollment,
                                      save_annotations)
-from egograph.io.atomic import atomic_dir
+from egograph.io.atomic import atomic_dir, atomic_write_text
 from egograph.io.calibration import PV_SHAPE, write_ahat_calibration, write_pv_calibration
 from egograph.io.detections import Detection, write_detection_dir
 from egograph.io.poses import write_pose_json
@@ -122,6 +122,55 @@ def render_mvpe_photos(scene: Scene, textures: Textures, size: int) -> dict[str,
     return photos
 
 
+def simulate_detections(cfg: SynthConfig, seed: int, ts: np.ndarray, views: dict) -> tuple[dict, dict]:
+    """Run both front-ends (SVOE, MVPE) over the per-frame views -> detections and their truth lines.
+
+    Each front-end has its own random stream of ``seed``, so this gives the same output inside
+    ``generate`` and when re-run later on the views saved in ``synth_gt/`` (``egograph synth --redetect``).
+    """
+    streams = np.random.SeedSequence(seed).spawn(len(STREAMS))
+    detections: dict[str, dict[int, list[Detection]]] = {}
+    truth: dict[str, list[str]] = {}
+    for name in ("svoe", "mvpe"):
+        fe = FrontEnd(np.random.default_rng(streams[STREAMS.index(name)]), getattr(cfg.detections, name),
+                      views["twins"], PV_SHAPE)
+        detections[name], truth[name] = {}, []
+        for i, t in enumerate(ts):
+            view = FrameView(views["visible"][i], views["boxes"][i], views["motion_dps"][i], views["clutter_boxes"][i])
+            cands = fe.frame(view)
+            detections[name][int(t)] = [Detection(c.instance, Box(*map(float, c.box)), c.score) for c in cands]
+            truth[name] += [f"{t} {c.instance} {int(c.source != SOURCE_TRUE)} {c.source} {c.source_id}" for c in cands]
+    return detections, truth
+
+
+def write_detection_sets(root: Path, seq: str, detections: dict, truth: dict) -> None:
+    for name, per_frame in detections.items():
+        write_detection_dir(root / "detections" / seq / name, per_frame)
+        lines = truth[name]
+        atomic_write_text(root / "synth_gt" / seq / f"detections_{name}.txt",
+                          "# ts instance is_false source source_id  (source: true|twin|other|clutter)\n"
+                          + "\n".join(lines) + ("\n" if lines else ""))
+
+
+def redetect(root: str | Path, cfg: SynthConfig) -> dict[str, int]:
+    """Re-simulate the detection sets of an existing synthetic recording with ``cfg.detections``.
+
+    Only the front-end changes: scene, activity, depth and poses stay as generated. Used to
+    calibrate the front-ends without re-rendering. Returns detections written per set.
+    """
+    root = Path(root)
+    meta = json.loads((root / "recording.json").read_text())
+    seq, seed = meta["sequence"], int(meta["seed"])
+    with np.load(root / "synth_gt" / seq / "instances.npz") as data:
+        views = {k: data[k] for k in ("visible", "boxes", "clutter_boxes", "motion_dps", "twins")}
+        ts = data["timestamps"]
+    detections, truth = simulate_detections(cfg, seed, ts, views)
+    write_detection_sets(root, seq, detections, truth)
+    meta["config"]["detections"] = to_dict(cfg.detections)
+    atomic_write_text(root / "recording.json", json.dumps(meta, indent=1))
+    return {k: sum(len(v) for v in d.values()) for k, d in detections.items()}
+
+
 def generate(out: str | Path, cfg: SynthConfig, seed: int, progress: bool = True) -> SynthResult:
     """Generate one recording into ``out`` (replaced atomically when complete)."""
     t_start = time.perf_counter()
@@ -151,7 +200,6 @@ def generate(out: str | Path, cfg: SynthConfig, seed: int, progress: bool = True
     clutter = _clutter_spots(rngs["scene"], scene, max(cfg.detections.svoe.clutter_per_instance,
                                                         cfg.detections.mvpe.clutter_per_instance))
     twins = np.array([o.twin for o in scene.objects])
-    frontends = {name: FrontEnd(rngs[name], getattr(cfg.detections, name), twins, PV_SHAPE) for name in ("svoe", "mvpe")}
     textures = Textures(rngs["textures"])
 
     ahat_dirs, ahat_norms = ahat_camera_rays(ahat_cal)
@@ -163,8 +211,8 @@ def generate(out: str | Path, cfg: SynthConfig, seed: int, progress: bool = True
 
     visible = np.zeros((n, k))
     boxes = np.full((n, k, 4), np.nan)
-    detections: dict[str, dict[int, list[Detection]]] = {s: {} for s in frontends}
-    det_truth: dict[str, list[str]] = {s: [] for s in frontends}
+    clutter_boxes = np.full((n,) + clutter.shape[:2] + (4,), np.nan)
+    motion = np.zeros((n, k))
     bbox_annot: dict[int, list[tuple[int, Box]]] = {i: [] for i in range(k)}
     svoe: dict[int, SvoeEnrollment] = {}
     clutter_half = np.array([o.size for o in scene.objects]) / 2
@@ -207,12 +255,8 @@ def generate(out: str | Path, cfg: SynthConfig, seed: int, progress: bool = True
                     b, _ = _project_box(v, world_to_pv, k_pv, PV_SHAPE)
                     if b is not None:
                         cb[a, c] = b
-            motion = np.where(traj.held[i], 0.3 * ang_speed[i] + 20.0, ang_speed[i])
-            view = FrameView(visible[i], boxes[i], motion, cb)
-            for name, fe in frontends.items():
-                cands = fe.frame(view)
-                detections[name][int(ts[i])] = [Detection(c.instance, Box(*map(float, c.box)), c.score) for c in cands]
-                det_truth[name] += [f"{ts[i]} {c.instance} {int(c.source != SOURCE_TRUE)} {c.source} {c.source_id}" for c in cands]
+            clutter_boxes[i] = cb
+            motion[i] = np.where(traj.held[i], 0.3 * ang_speed[i] + 20.0, ang_speed[i])
             # Annotations: amodal boxes every stride-th frame when at least a quarter visible.
             for j in range(k):
                 if not np.isfinite(boxes[i, j, 0]):
@@ -235,15 +279,17 @@ def generate(out: str | Path, cfg: SynthConfig, seed: int, progress: bool = True
                 img = (col.reshape(rgb_shape + (3,)) * 255).astype(np.uint8)
                 cv2.imwrite(str(seq_dir / "pv" / f"{ts[i]}.png"), cv2.cvtColor(img, cv2.COLOR_RGB2BGR), png_rgb)
 
+        views = {"visible": visible, "boxes": boxes, "clutter_boxes": clutter_boxes, "motion_dps": motion, "twins": twins}
+        detections, det_truth = simulate_detections(cfg, seed, ts, views)
         _write_outputs(tmp, cfg, seed, scene, traj, ts, pv_rep, depth_rep, pv_true, depth_true, ahat_cal, pv_cal,
-                       visible, boxes, detections, det_truth, bbox_annot, svoe, jumps, depth_offset, rngs, textures)
+                       views, detections, det_truth, bbox_annot, svoe, jumps, depth_offset, rngs, textures)
     seconds = time.perf_counter() - t_start
     n_int = sum(len(stationary_runs(traj.held[:, j])) for j in range(k))
     return SynthResult(out, cfg.sequence, n, [o.name for o in scene.objects], n_int, len(traj.moves), seconds, n / seconds)
 
 
 def _write_outputs(tmp: Path, cfg: SynthConfig, seed: int, scene: Scene, traj: Trajectory, ts: np.ndarray,
-                   pv_rep, depth_rep, pv_true, depth_true, ahat_cal, pv_cal, visible, boxes, detections, det_truth,
+                   pv_rep, depth_rep, pv_true, depth_true, ahat_cal, pv_cal, views, detections, det_truth,
                    bbox_annot, svoe, jumps, depth_offset, rngs, textures) -> None:
     import open3d as o3d
 
@@ -270,8 +316,7 @@ def _write_outputs(tmp: Path, cfg: SynthConfig, seed: int, scene: Scene, traj: T
     ann = Annotations(labels=[o.name for o in scene.objects], centers=centers, motion=motion,
                       boxes={j: rows for j, rows in bbox_annot.items() if rows}, svoe=[svoe[j] for j in sorted(svoe)])
     save_annotations(tmp / "annotations" / seq, ann)
-    for name, per_frame in detections.items():
-        write_detection_dir(tmp / "detections" / seq / name, per_frame)
+    write_detection_sets(tmp, seq, detections, det_truth)
 
     # MVPE enrollment photos.
     for name, imgs in render_mvpe_photos(scene, textures, cfg.mvpe_photo_size).items():
@@ -282,16 +327,15 @@ def _write_outputs(tmp: Path, cfg: SynthConfig, seed: int, scene: Scene, traj: T
 
     # The truth.
     gt = tmp / "synth_gt" / seq
-    gt.mkdir(parents=True)
+    gt.mkdir(parents=True, exist_ok=True)
     write_pose_json(gt / "pv_pose.json", ts, pv_true)
     write_pose_json(gt / "depth_ahat_pose.json", ts, depth_true)
     np.savez_compressed(gt / "instances.npz", timestamps=ts, positions=traj.obj_pos.astype(np.float64),
-                        moving=traj.held, visible=visible.astype(np.float32), boxes=boxes.astype(np.float32),
+                        moving=traj.held, visible=views["visible"].astype(np.float32),
+                        boxes=views["boxes"].astype(np.float32), clutter_boxes=views["clutter_boxes"].astype(np.float32),
+                        motion_dps=views["motion_dps"].astype(np.float32), twins=views["twins"],
                         depth_offset_s=(depth_offset / cfg.fps).astype(np.float64))
     (gt / "intervals.json").write_text(json.dumps(intervals, indent=1))
-    for name, lines in det_truth.items():
-        (gt / f"detections_{name}.txt").write_text(
-            "# ts instance is_false source source_id  (source: true|twin|other|clutter)\n" + "\n".join(lines) + ("\n" if lines else ""))
     meta = {
         "objects": [{"name": o.name, "shape": o.shape, "size": o.size.tolist(), "color": o.color.tolist(),
                      "albedo": o.albedo, "twin": o.twin} for o in scene.objects],

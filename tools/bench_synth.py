@@ -1,0 +1,59 @@
+#!/usr/bin/env python
+"""Benchmark the synthetic generator (frames/s, depth only and with RGB) and the reader
+(frames/s to open a recording and load poses + every depth frame).
+
+    .venv/bin/python tools/bench_synth.py --frames 3000 --rgb-frames 300
+"""
+
+from __future__ import annotations
+
+import argparse
+import shutil
+import tempfile
+import time
+from pathlib import Path
+
+from egograph.config import load_config
+from egograph.io.recording import Recording
+from egograph.synth.config import SynthConfig
+from egograph.synth.generate import generate
+
+REPO = Path(__file__).resolve().parents[1]
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("--config", default=str(REPO / "configs" / "synth" / "svoe.yaml"))
+    ap.add_argument("--frames", type=int, default=3000, help="frames of the depth-only run")
+    ap.add_argument("--rgb-frames", type=int, default=300, help="frames of the run with RGB (0 to skip)")
+    ap.add_argument("--seed", type=int, default=1)
+    ap.add_argument("--keep", type=Path, help="keep the depth-only recording here")
+    args = ap.parse_args()
+
+    tmp = Path(tempfile.mkdtemp(prefix="bench_synth_"))
+    rows = []
+    try:
+        cfg = load_config(SynthConfig, args.config, [f"frames={args.frames}", "pv.rgb=false"])
+        out = args.keep or tmp / "depth"
+        r = generate(out, cfg, seed=args.seed, progress=True)
+        rows.append(("generate, depth only", r.frames, r.seconds))
+        t = time.perf_counter()
+        rec = Recording.open(out)
+        n = sum(rec.depth_raw(i) is not None for i in range(len(rec)))
+        rows.append(("read poses + all depth frames", n, time.perf_counter() - t))
+        if args.rgb_frames:
+            cfg = load_config(SynthConfig, args.config, [f"frames={args.rgb_frames}", "pv.rgb=true"])
+            r = generate(tmp / "rgb", cfg, seed=args.seed, progress=True)
+            rows.append(("generate, with RGB", r.frames, r.seconds))
+    finally:
+        shutil.rmtree(tmp, ignore_errors=True)
+    print(f"\n{'stage':34s} {'frames':>7s} {'seconds':>8s} {'frames/s':>9s}")
+    for name, n, s in rows:
+        print(f"{name:34s} {n:7d} {s:8.1f} {n / s:9.1f}")
+    if args.frames:
+        per = rows[0][2] / rows[0][1]
+        print(f"\nprojected 3000-frame depth-only recording: {per * 3000:.0f} s")
+
+
+if __name__ == "__main__":
+    main()
