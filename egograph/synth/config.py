@@ -23,10 +23,10 @@ class SceneConfig:
 @dataclass
 class WearerConfig:
     head_height: float = knob(1.62, "eye height while standing, metres")
-    walk_speed: float = knob(1.1, "walking speed, m/s")
+    walk_speed: float = knob(1.3, "walking speed, m/s")
     reach_time: float = knob(0.8, "time spent looking at an object before picking it up / while putting it down, s")
     carry_distance: list[float] = knob([0.3, 0.6], "range of hand-to-eye distance while carrying, metres")
-    idle_time: list[float] = knob([0.8, 2.5], "range of look-around time after each put-down, s")
+    idle_time: list[float] = knob([0.6, 1.8], "range of look-around time after each put-down, s")
     head_turn_rate: float = knob(0.7, "fast head turns per second while looking around")
     head_turn_angle: list[float] = knob([40.0, 100.0], "range of yaw of a fast head turn, degrees")
     head_turn_time: list[float] = knob([0.2, 0.4], "range of duration of a fast head turn, s (peak rates reach 300-500 deg/s)")
@@ -61,11 +61,11 @@ class PoseErrorConfig:
     enabled: bool = knob(True, "perturb reported poses; false writes the true poses")
     jitter_trans: float = knob(0.001, "per-frame translation jitter std, metres")
     jitter_rot: float = knob(0.1, "per-frame rotation jitter std, degrees")
-    drift_trans: float = knob(0.004, "random-walk translation drift, metres per sqrt(second)")
-    drift_rot: float = knob(0.08, "random-walk yaw drift, degrees per sqrt(second)")
-    jump_rate: float = knob(0.3, "probability of a relocalisation jump after a fast head turn")
-    jump_trans: list[float] = knob([0.03, 0.08], "range of relocalisation jump size, metres")
-    jump_rot: list[float] = knob([0.3, 1.5], "range of relocalisation jump rotation, degrees")
+    drift_trans: float = knob(0.002, "random-walk translation drift, metres per sqrt(second)")
+    drift_rot: float = knob(0.03, "random-walk yaw drift, degrees per sqrt(second)")
+    jump_rate: float = knob(0.08, "probability of a relocalisation jump after a fast head turn")
+    jump_trans: list[float] = knob([0.02, 0.06], "range of relocalisation jump size, metres")
+    jump_rot: list[float] = knob([0.2, 0.6], "range of relocalisation jump rotation, degrees")
     fast_turn_rate: float = knob(150.0, "head angular speed counted as a fast turn, deg/s")
 
 
