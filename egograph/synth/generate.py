@@ -78,6 +78,31 @@ def _project_box(vertices_world: np.ndarray, world_to_pv: np.ndarray, k_pv: np.n
     return np.array([cx1, cy1, cx2, cy2]), float((cx2 - cx1) * (cy2 - cy1) / full)
 
 
+def silhouette_pixels(scene: Scene, j: int, pos: np.ndarray, yaw: float, origin: np.ndarray, pose: np.ndarray,
+                      dirs_cam: np.ndarray, grid: tuple[int, int], box_grid: np.ndarray) -> int:
+    """Pixels of the (downsampled) PV grid the object covers when nothing else is in the scene.
+
+    Only the rays inside its box are cast, so occlusion by other objects, furniture or the
+    hand is measured against the true unoccluded silhouette.
+    """
+    import open3d as o3d
+
+    h, w = grid
+    x1, y1 = max(int(np.floor(box_grid[0])), 0), max(int(np.floor(box_grid[1])), 0)
+    x2, y2 = min(int(np.ceil(box_grid[2])) + 1, w), min(int(np.ceil(box_grid[3])) + 1, h)
+    if x2 <= x1 or y2 <= y1:
+        return 0
+    rows, cols = np.mgrid[y1:y2, x1:x2]
+    idx = (rows * w + cols).ravel()
+    rc = o3d.t.geometry.RaycastingScene()
+    v = object_world_vertices(scene, j, pos, yaw)
+    rc.add_triangles(o3d.core.Tensor(v.astype(np.float32)), o3d.core.Tensor(scene.objects[j].triangles.astype(np.uint32)))
+    rays = np.empty((len(idx), 6), np.float32)
+    rays[:, :3] = origin
+    rays[:, 3:] = dirs_cam[idx] @ pose[:3, :3]
+    return int(np.isfinite(rc.cast_rays(o3d.core.Tensor(rays))["t_hit"].numpy()).sum())
+
+
 def _clutter_spots(rng: np.random.Generator, scene: Scene, per_instance: int) -> np.ndarray:
     """Persistent background spots (K, C, 3) on surfaces that resemble each instance."""
     k = len(scene.objects)
@@ -227,21 +252,22 @@ def generate(out: str | Path, cfg: SynthConfig, seed: int, progress: bool = True
             obj_pos, obj_yaw = traj.objects_at(i)
             hand, hand_on = traj.hand_at(i)
             geom = build_raycasting_scene(scene, obj_pos, obj_yaw, hand if hand_on else None)
-            geom_alone = build_raycasting_scene(scene, obj_pos, obj_yaw, None, include_static=False)
             pose = pv_true[i]
             origin = pose[3, :3]
             dirs = vis_dirs @ pose[:3, :3]
             hit = cast(geom, origin, dirs)
-            alone = cast(geom_alone, origin, dirs)
             seen = np.bincount(hit["geom"][hit["geom"] != 0xFFFFFFFF].astype(np.int64), minlength=k + 2)[1:k + 1]
-            full = np.bincount(alone["geom"][alone["geom"] != 0xFFFFFFFF].astype(np.int64), minlength=k + 2)[1:k + 1]
             world_to_pv = invert_rigid(pose)
             for j in range(k):
                 box, inside = _project_box(object_world_vertices(scene, j, obj_pos[j], obj_yaw[j]), world_to_pv, k_pv, PV_SHAPE)
-                if box is None or full[j] == 0:
+                if box is None:
+                    continue
+                # Unoccluded footprint: the object alone, cast through the pixels of its box only.
+                full = silhouette_pixels(scene, j, obj_pos[j], obj_yaw[j], origin, pose, vis_dirs, vis_shape, box / ds)
+                if full == 0:
                     continue
                 boxes[i, j] = box
-                visible[i, j] = min(1.0, seen[j] / full[j]) * inside
+                visible[i, j] = min(1.0, seen[j] / full) * inside
             # Clutter spots: seen where the static surface at their pixel is at their depth.
             cb = np.full(clutter.shape[:2] + (4,), np.nan)
             uv, dep = pv_project(transform_points(clutter.reshape(-1, 3), world_to_pv), k_pv)
