@@ -16,6 +16,7 @@ bands of the synthetic front-end (memory + reference lifting).
 from __future__ import annotations
 
 import argparse
+import hashlib
 import json
 import sys
 import time
@@ -26,7 +27,7 @@ import numpy as np
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 from benchset import DEFAULT_CACHE, benchmark_set  # noqa: E402
 
-from egograph.config import load_config  # noqa: E402
+from egograph.config import load_config, to_dict  # noqa: E402
 from egograph.eval.report import EvalReport, comparison_table, plot_pr  # noqa: E402
 from egograph.geometry.lift import synth_lift_errors  # noqa: E402
 from egograph.geometry.observations import Observations  # noqa: E402
@@ -43,6 +44,13 @@ TRACKERS = ("memory", "kf")
 MODES = ("reference", "robust")
 
 
+def cache_key(root: Path, cfg: EgographConfig) -> str:
+    """Observations depend on the detections (front-end config) and the lifting config."""
+    meta = json.loads((root / "recording.json").read_text())
+    blob = json.dumps([meta["config"]["detections"], to_dict(cfg.lift), to_dict(cfg.io)], sort_keys=True)
+    return hashlib.sha256(blob.encode()).hexdigest()[:12]
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--seeds", type=int, nargs="+", default=[1, 2, 3, 4, 5])
@@ -53,6 +61,8 @@ def main() -> None:
     ap.add_argument("--cache", type=Path, default=DEFAULT_CACHE)
     ap.add_argument("--out", type=Path, default=REPO / ".cache" / "bench_trackers")
     ap.add_argument("--relift", action="store_true", help="ignore cached observations")
+    ap.add_argument("--trackers", nargs="+", default=list(TRACKERS))
+    ap.add_argument("--modes", nargs="+", default=list(MODES), help="lifting modes")
     args = ap.parse_args()
 
     roots = benchmark_set(args.seeds, args.frames, overrides=args.synth_overrides, cache=args.cache)
@@ -64,9 +74,9 @@ def main() -> None:
         rec = open_recording(root, cfg)
         seq = root.name
         for det_set in ("svoe", "mvpe"):
-            for mode in MODES:
+            for mode in args.modes:
                 cfg.lift.mode = mode
-                obs_path = root / "observations" / f"{det_set}_{mode}.npz"
+                obs_path = root / "observations" / f"{det_set}_{mode}_{cache_key(root, cfg)}.npz"
                 t0 = time.perf_counter()
                 if obs_path.exists() and not args.relift:
                     obs = Observations.load(obs_path)
@@ -81,7 +91,7 @@ def main() -> None:
                 st = lift_stats.setdefault((det_set, mode), {"seconds": 0.0, "frames": 0, "dets": 0})
                 st.setdefault("err", []).append(err[true & np.isfinite(err)])
                 timing[f"lift {mode}"] = timing.get(f"lift {mode}", 0.0) + time.perf_counter() - t0
-                for tracker in TRACKERS:
+                for tracker in args.trackers:
                     t1 = time.perf_counter()
                     per_frame = track(rec, tracker, obs, cfg)
                     timing[f"track {tracker}"] = timing.get(f"track {tracker}", 0.0) + time.perf_counter() - t1
@@ -96,7 +106,7 @@ def main() -> None:
     md_all = [f"Benchmark set: {len(roots)} synthetic recordings x {args.frames} frames (seeds "
               f"{', '.join(map(str, args.seeds))}); counts pooled over the set.\n"]
     for det_set, reps in reports.items():
-        md, csv = comparison_table(reps, baseline="kf (reference lift)")
+        md, csv = comparison_table(reps, baseline="kf (reference lift)" if "kf (reference lift)" in reps else None)
         md_all += [f"### {det_set.upper()}\n", md, ""]
         atomic_write_text(args.out / f"{det_set}.csv", csv)
         plot_pr(reps, args.out / f"{det_set}.png", title=f"{det_set.upper()} benchmark set")
@@ -111,7 +121,7 @@ def main() -> None:
         fps = st["frames"] / st["seconds"] if st["seconds"] else float("nan")
         dps = st["dets"] / st["seconds"] if st["seconds"] else float("nan")
         print(f"| {det_set} | {mode} | {np.median(e):.3f} | {e.mean():.3f} | {len(e)} | {fps:.1f} | {dps:.1f} |")
-    for det_set in ("svoe", "mvpe"):
+    for det_set in ("svoe", "mvpe") if len(args.modes) == 2 else ():
         ref = np.median(np.concatenate(lift_stats[(det_set, "reference")]["err"]))
         rob = np.median(np.concatenate(lift_stats[(det_set, "robust")]["err"]))
         print(f"\n{det_set}: reference / robust median lifting error = {ref / rob:.1f}x")
@@ -119,6 +129,8 @@ def main() -> None:
     print("\n### Calibration bands (memory + reference lifting, pooled over the set)\n")
     ok_all = True
     for det_set, bands in BANDS.items():
+        if "memory (reference lift)" not in reports[det_set]:
+            continue
         tot = reports[det_set]["memory (reference lift)"].total
         vals = {"P@0.25": 100 * tot.precision[0], "P@1.5": 100 * tot.precision[-1], "L2 (m)": tot.l2_m}
         for k, (lo, hi) in bands.items():
