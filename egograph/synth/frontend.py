@@ -37,15 +37,22 @@ class Candidate:
     source_id: int
 
 
+def size_factor(cfg: FrontEndConfig, side: np.ndarray) -> np.ndarray:
+    """Share of instances of a given box side (pixels) that region proposals + matching recover."""
+    r = (side / cfg.size_half_px) ** cfg.size_exponent
+    return r / (1.0 + r)
+
+
 def detection_probability(cfg: FrontEndConfig, visible: np.ndarray, boxes: np.ndarray, motion: np.ndarray) -> np.ndarray:
     """Probability (K,) that a region proposal covers each instance well enough to be matched."""
     side = np.sqrt(np.maximum((boxes[:, 2] - boxes[:, 0]) * (boxes[:, 3] - boxes[:, 1]), 0))
     side = np.nan_to_num(side)
     vis = np.clip((visible - cfg.min_visible) / (1 - cfg.min_visible), 0, 1) ** 0.5
-    size = side ** 2 / (side ** 2 + cfg.size_half_px ** 2)
+    size = size_factor(cfg, side)
     blur = 1.0 / (1.0 + (motion / cfg.blur_half_dps) ** 2)
     p = cfg.detect_rate * vis * size * blur
-    return np.where(np.isfinite(boxes[:, 0]) & (visible >= cfg.min_visible), p, 0.0)
+    short = np.nan_to_num(np.minimum(boxes[:, 2] - boxes[:, 0], boxes[:, 3] - boxes[:, 1]))
+    return np.where(np.isfinite(boxes[:, 0]) & (visible >= cfg.min_visible) & (short >= cfg.min_box_px), p, 0.0)
 
 
 def jitter_box(rng: np.random.Generator, box: np.ndarray, frac: float, width: int, height: int) -> np.ndarray:
@@ -74,7 +81,7 @@ class FrontEnd:
         p_det = detection_probability(cfg, view.visible, view.boxes, view.motion_dps)
         fired = rng.random(k) < p_det
         side = np.nan_to_num(np.sqrt(np.maximum((view.boxes[:, 2] - view.boxes[:, 0]) * (view.boxes[:, 3] - view.boxes[:, 1]), 0)))
-        quality = (side ** 2 / (side ** 2 + cfg.size_half_px ** 2)) / (1.0 + (view.motion_dps / cfg.blur_half_dps) ** 2)
+        quality = size_factor(cfg, side) / (1.0 + (view.motion_dps / cfg.blur_half_dps) ** 2)
         out = []
         for i in range(k):
             best: Candidate | None = None
@@ -94,7 +101,7 @@ class FrontEnd:
                     mean, std = cfg.lookalike_score
                     source = SOURCE_TWIN
                 else:
-                    mean, std = 0.35, 0.08
+                    mean, std = cfg.other_score
                     source = SOURCE_OTHER
                 offer(rng.normal(mean, std) - 0.08 * (1 - quality[j]), view.boxes[j], source, j)
             cb = view.clutter_boxes[i]

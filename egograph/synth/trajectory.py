@@ -238,6 +238,8 @@ def make_trajectory(rng: np.random.Generator, scene: Scene, cfg: SynthConfig) ->
         hold(wc.reach_time, lambda j, t=dst: t, carry=i, dip=dip_dst)
         place = state["f"] - 1
         carry_dist[a:state["f"]] = d
+        # The hand withdraws while the eyes stay a moment on the object just put down.
+        hold(rng.uniform(0.4, 0.9), lambda j, t=dst: t, dip=dip_dst)
         moves.append(Move(i, pick, place, src, dst.copy()))
         cur[i] = dst
         cur_surface[i] = s_dst
