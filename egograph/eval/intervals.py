@@ -30,24 +30,11 @@ TICKS_PER_SECOND = 1e7  # HoloLens timestamps are 100 ns ticks
 
 
 @dataclass(frozen=True)
-class PredictedInterval:
-    """A tracker's claim: ``instance`` stood at ``xyz`` (world, metres) over ``[t_start, t_end]`` (ticks, inclusive)."""
+class PredictedInterval(GtInterval):
+    """A tracker's claim: ``instance`` stood at ``xyz`` (world, metres) over ``[t_start, t_end]`` (ticks, inclusive).
 
-    instance: int
-    t_start: int
-    t_end: int
-    xyz: tuple[float, float, float]
-
-    def __post_init__(self) -> None:
-        object.__setattr__(self, "instance", int(self.instance))
-        object.__setattr__(self, "t_start", int(self.t_start))
-        object.__setattr__(self, "t_end", int(self.t_end))
-        xyz = tuple(float(v) for v in self.xyz)
-        if len(xyz) != 3:
-            raise ValueError(f"xyz must have 3 values, got {len(xyz)}")
-        object.__setattr__(self, "xyz", xyz)
-        if self.t_end < self.t_start:
-            raise ValueError(f"t_end {self.t_end} is before t_start {self.t_start}")
+    The same record as a ground-truth interval (same validation), named for its role.
+    """
 
 
 @dataclass
