@@ -11,7 +11,7 @@ from pathlib import Path
 
 from egograph.config import load_config, to_dict
 from egograph.synth.config import SynthConfig
-from egograph.synth.generate import generate, redetect
+from egograph.synth.generate import GENERATOR_REVISION, generate, redetect
 
 REPO = Path(__file__).resolve().parents[1]
 DEFAULT_CACHE = REPO / ".cache" / "bench"
@@ -29,7 +29,8 @@ def benchmark_set(seeds: list[int], frames: int, config: str | Path = REPO / "co
         meta = json.loads(meta_path.read_text()) if meta_path.exists() else None
         have = meta["config"] if meta else None
         strip = lambda d: {k: v for k, v in d.items() if k != "detections"}  # noqa: E731
-        if meta is None or meta.get("seed") != seed or strip(have) != strip(want):
+        if meta is None or meta.get("seed") != seed or meta.get("revision") != GENERATOR_REVISION \
+                or strip(have) != strip(want):
             print(f"generating benchmark recording seed {seed} ({frames} frames) -> {root}", flush=True)
             generate(root, cfg, seed=seed, progress=progress)
         elif have.get("detections") != want["detections"]:

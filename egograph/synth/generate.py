@@ -33,6 +33,9 @@ from egograph.synth.sensors import (Textures, ahat_camera_rays, build_raycasting
 from egograph.synth.trajectory import Trajectory, make_trajectory
 
 TS0 = 133_400_000_000_000_000  # a HoloLens-like 100 ns tick count (2023)
+# Bumped whenever the same seed and config would render a different recording, so caches of
+# generated recordings (tools/benchset.py) know to regenerate.
+GENERATOR_REVISION = 3
 STREAMS = ("scene", "activity", "depth", "pose_error", "svoe", "mvpe", "textures", "mesh")
 
 
@@ -372,6 +375,6 @@ def _write_outputs(tmp: Path, cfg: SynthConfig, seed: int, scene: Scene, traj: T
     }
     (gt / "scene.json").write_text(json.dumps(meta, indent=1))
     (tmp / "recording.json").write_text(json.dumps({
-        "generator": "egograph.synth", "version": __version__, "seed": seed, "sequence": seq,
+        "generator": "egograph.synth", "version": __version__, "revision": GENERATOR_REVISION, "seed": seed, "sequence": seq,
         "frames": cfg.frames, "detection_sets": sorted(detections), "primary_detections": cfg.detections.primary,
         "config": to_dict(cfg)}, indent=1))
