@@ -52,6 +52,17 @@ def _pipeline_config(args):
     return load_config(EgographConfig, args.config, args.overrides)
 
 
+def _lifting_config(args):
+    """Pipeline config with ``--lift`` applied; None after ``--show-config`` printed it."""
+    cfg = _pipeline_config(args)
+    if args.lift:
+        cfg.lift.mode = args.lift
+    if args.show_config:
+        _show_config(cfg)
+        return None
+    return cfg
+
+
 def _show_config(cfg) -> None:
     from rich.table import Table
 
@@ -115,11 +126,8 @@ def cmd_info(args) -> int:
 def cmd_lift(args) -> int:
     from egograph.pipeline import lift
 
-    cfg = _pipeline_config(args)
-    if args.lift:
-        cfg.lift.mode = args.lift
-    if args.show_config:
-        _show_config(cfg)
+    cfg = _lifting_config(args)
+    if cfg is None:
         return 0
     rec = _open(args, cfg)
     t0 = time.perf_counter()
@@ -140,11 +148,8 @@ def cmd_track(args) -> int:
     from egograph.pipeline import evaluate, lift, track, write_results
     from egograph.geometry.observations import Observations
 
-    cfg = _pipeline_config(args)
-    if args.lift:
-        cfg.lift.mode = args.lift
-    if args.show_config:
-        _show_config(cfg)
+    cfg = _lifting_config(args)
+    if cfg is None:
         return 0
     rec = _open(args, cfg)
     con = _console()
@@ -233,8 +238,10 @@ def cmd_demo(args) -> int:
         con.print(f"generated {r.frames} frames in {r.seconds:.1f} s ({r.fps_generation:.1f} frames/s)")
     cmd_info(argparse.Namespace(rec=rec_dir, sequence=None, calibration=None, annotations=None, json=None,
                                 config=DEFAULT_CONFIG, overrides=[], show_config=False))
-    cfg = load_config(__import__("egograph.settings", fromlist=["EgographConfig"]).EgographConfig, DEFAULT_CONFIG)
     from egograph.pipeline import open_recording
+    from egograph.settings import EgographConfig
+
+    cfg = load_config(EgographConfig, DEFAULT_CONFIG)
 
     rec = open_recording(rec_dir, cfg)
     reports = {}
