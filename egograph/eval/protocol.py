@@ -259,7 +259,7 @@ def evaluate_sequence(
     ts = np.asarray([int(t) for t in timestamps], dtype=np.int64)
     if len(np.unique(ts)) != len(ts):
         raise ValueError("timestamps contain duplicates")
-    n, k = len(ts), len(thresholds)
+    n = len(ts)
     centers = None
     if camera_centers is not None:
         centers = np.asarray(camera_centers, dtype=np.float64)

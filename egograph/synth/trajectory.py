@@ -291,7 +291,6 @@ def make_trajectory(rng: np.random.Generator, scene: Scene, cfg: SynthConfig) ->
     roll = np.radians(2.0) * np.sin(2 * np.pi * 0.15 * np.arange(n) * dt + rng.uniform(0, 6))
 
     # Hand and carried object: in front of the body, below the eyes, 0.3-0.6 m away.
-    hand_pos = np.zeros((n, 3))
     hand_active = carrying >= 0
     body = np.stack([rot_y(a) for a in body_yaw])
     local = np.column_stack([np.full(n, 0.06), -0.28 * np.maximum(carry_dist, 0.3) / 0.45, -np.maximum(carry_dist, 0.3)])
