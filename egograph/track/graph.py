@@ -1,0 +1,514 @@
+"""The factor-graph tracker: landmarks per chunk, switchable motion breaks, intervals with covariance.
+
+Per instance (camera poses fixed, so instances are independent graphs):
+
+1. *Observations*: lifted detections (world frame, metres) with score >= ``score_threshold``.
+2. *Chunks*: the instance's timeline is cut on a fixed grid of ``chunk_s`` seconds; each
+   non-empty chunk k gets a landmark ``L_k`` (Point3).
+3. *Detection factors*: a robust, range-dependent ``PriorFactorPoint3`` per observation
+   (:mod:`egograph.track.detection_factor`).
+4. *Motion breaks*: consecutive landmarks are joined by a switchable zero-motion factor
+   (:mod:`egograph.track.switchable`), or its DCS closed form (``switches: dcs``).
+5. *Solve*: batch Levenberg-Marquardt (offline) or iSAM2 chunk by chunk (causal: a
+   frame's prediction uses only observations up to that frame).
+6. *Alias*: after a first solve each observation takes the AHAT alias candidate nearest
+   its landmark, and the graph is solved again.
+7. *Segments*: runs of chunks whose switches stay on. A segment whose robust centre
+   explains most of its observations (inlier share) with enough of them is *stationary*;
+   the rest (carried objects, scattered false matches) are *dynamic* and predict nothing.
+   Stationary segments at the same place (within ``merge_radius_m``) separated only by
+   weaker segments merge: the weaker ones were false matches.
+8. *Intervals*: each stationary segment is re-solved as one landmark; its covariance is
+   the GTSAM marginal plus ``covariance_floor_m`` squared (errors shared by all its
+   observations: pose drift, surface-to-centre bias). Time extent policy:
+
+   * an interval lasts from its first supporting detection until the first evidence that
+     the object left: a detection elsewhere, or negative evidence
+     (:mod:`egograph.track.negative`): the place in view, depth showing it empty;
+   * after a carried (dynamic) stretch, the new interval starts right after the last
+     carried detection (the object was put down then), at most ``backfill_max_s`` early;
+   * offline only, an instance's first interval is back-filled to the recording's first
+     frame (marked ``backfilled`` in the output).
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+from typing import Callable, Sequence
+
+import gtsam
+import numpy as np
+
+from egograph.config import knob, section
+from egograph.geometry.observations import Observations
+from egograph.track.detection_factor import (
+    DetectionNoiseConfig, add_detection_factors, detection_covariances, mahalanobis2, robust,
+)
+from egograph.track.intervals import PositionInterval, per_frame_predictions
+from egograph.track.switchable import (
+    dcs_between, dcs_switch_value, switch_clipped, switch_prior, switchable_between,
+)
+
+TICKS_PER_SECOND = 1e7
+
+
+@dataclass
+class GraphConfig:
+    score_threshold: float = knob(0.6, "minimum matcher score of a detection the graph uses (the paper's 0.6)")
+    chunk_s: float = knob(0.5, "length of the time grid that over-segments an instance's timeline into landmarks, s")
+    still_sigma_m: float = knob(0.05, "sigma of the zero-motion factor between consecutive landmarks, metres")
+    switch_sigma: float = knob(0.5, "sigma of the prior pulling each switch to 1; a break costs 0.5/sigma^2 and "
+                                    "fires where landmarks differ by more than still_sigma_m/switch_sigma")
+    switches: str = knob("switchable", "motion-break factor: 'switchable' (switch variables, CustomFactor) or "
+                                       "'dcs' (dynamic covariance scaling, closed form, all C++)")
+    break_below: float = knob(0.5, "a switch below this value (0-1) is a motion break")
+    min_observations: int = knob(3, "fewest inlier detections a stationary interval needs")
+    min_inlier_share: float = knob(0.6, "share of a segment's detections its centre must explain to be stationary")
+    inlier_chi2: float = knob(11.34, "squared Mahalanobis gate of an inlier (chi2, 3 dof, 99 %)")
+    merge_radius_m: float = knob(0.12, "stationary segments whose centres are closer than this merge into one "
+                                       "interval when the segments between them are weaker, metres")
+    carry_range_m: float = knob(0.9, "a detection this close to the camera may be an object in hand, metres")
+    min_carry_observations: int = knob(2, "a non-stationary segment with at least this many detections within "
+                                          "carry_range_m is a carry (it ends the interval before it); with fewer "
+                                          "it is taken for scattered false matches and ignored")
+    backfill_max_s: float = knob(3.0, "after a carried stretch, an interval starts at most this long before its "
+                                      "first detection, s")
+    covariance_floor_m: float = knob(0.03, "isotropic sigma added to every interval covariance for errors shared "
+                                           "by its detections (pose drift, surface-to-centre bias), metres")
+    confidence_scale: float = knob(5.0, "inlier count at which confidence reaches 63 % of the inlier share")
+    alias_rounds: int = knob(1, "re-solves after re-choosing each detection's AHAT alias candidate")
+    max_iterations: int = knob(50, "Levenberg-Marquardt iteration limit")
+    negative_evidence: bool = knob(True, "end intervals where depth shows the place empty (needs depth frames)")
+    noise: DetectionNoiseConfig = section(DetectionNoiseConfig, "detection factor noise and robust kernel")
+
+
+@dataclass
+class Segment:
+    """A run of chunks of one instance joined by switches that stayed on."""
+
+    rows: np.ndarray            # indices into the instance's observation arrays
+    xyz: np.ndarray             # robust centre, world, metres
+    covariance: np.ndarray      # 3x3 marginal covariance, m^2 (without the floor)
+    inliers: np.ndarray         # bool per row
+    stationary: bool = False
+    carried: bool = False        # not stationary, with detections at hand range: the object was moving
+
+    @property
+    def n_inliers(self) -> int:
+        return int(self.inliers.sum())
+
+
+@dataclass
+class InstanceSolution:
+    instance: int
+    intervals: list[PositionInterval]
+    switches: np.ndarray = field(default_factory=lambda: np.zeros(0))  # effective switch per chunk boundary
+    n_observations: int = 0
+    n_chunks: int = 0
+
+
+@dataclass
+class GraphResult:
+    intervals: list[PositionInterval]
+    per_frame: dict
+    solutions: list[InstanceSolution]
+    metadata: dict
+
+
+# --------------------------------------------------------------------------- graph pieces
+
+
+def L(k: int) -> int:
+    return gtsam.symbol("l", k)
+
+
+def S(k: int) -> int:
+    return gtsam.symbol("s", k)
+
+
+def chunk_index(t_s: np.ndarray, chunk_s: float) -> np.ndarray:
+    """Chunk id 0..C-1 per observation (times sorted, seconds) on a fixed grid from the first."""
+    grid = np.floor((t_s - t_s[0]) / chunk_s).astype(np.int64)
+    _, idx = np.unique(grid, return_inverse=True)
+    return idx.astype(np.int64)
+
+
+def chunk_medians(world: np.ndarray, chunk: np.ndarray, n: int) -> np.ndarray:
+    out = np.empty((n, 3))
+    order = np.argsort(chunk, kind="stable")
+    bounds = np.searchsorted(chunk[order], np.arange(n + 1))
+    for k in range(n):
+        out[k] = np.median(world[order[bounds[k]:bounds[k + 1]]], axis=0)
+    return out
+
+
+def add_break_factors(graph: gtsam.NonlinearFactorGraph, values: gtsam.Values, k: int, cfg: GraphConfig) -> None:
+    """Motion-break factor between landmarks k-1 and k (and the switch variable, if any)."""
+    if cfg.switches == "switchable":
+        graph.add(switchable_between(L(k - 1), L(k), S(k), cfg.still_sigma_m))
+        graph.add(switch_prior(S(k), cfg.switch_sigma))
+        values.insert(S(k), np.array([1.0]))
+    elif cfg.switches == "dcs":
+        graph.add(dcs_between(L(k - 1), L(k), cfg.still_sigma_m, 1.0 / cfg.switch_sigma**2))
+    else:
+        raise ValueError(f"unknown switches {cfg.switches!r}: 'switchable' or 'dcs'")
+
+
+def instance_graph(world: np.ndarray, cov: np.ndarray, chunk: np.ndarray, init: np.ndarray,
+                   cfg: GraphConfig) -> tuple[gtsam.NonlinearFactorGraph, gtsam.Values]:
+    graph = gtsam.NonlinearFactorGraph()
+    values = gtsam.Values()
+    for k, p in enumerate(init):
+        values.insert(L(k), gtsam.Point3(*p))
+        if k:
+            add_break_factors(graph, values, k, cfg)
+    add_detection_factors(graph, np.array([L(int(c)) for c in chunk]), world, cov, cfg.noise)
+    return graph, values
+
+
+def solve_lm(graph: gtsam.NonlinearFactorGraph, values: gtsam.Values, max_iterations: int) -> gtsam.Values:
+    params = gtsam.LevenbergMarquardtParams()
+    params.setMaxIterations(max_iterations)
+    params.setRelativeErrorTol(1e-6)
+    params.setAbsoluteErrorTol(1e-9)
+    return gtsam.LevenbergMarquardtOptimizer(graph, values, params).optimize()
+
+
+def switch_values(result: gtsam.Values, landmarks: np.ndarray, cfg: GraphConfig) -> np.ndarray:
+    """Effective switch (0-1) per chunk boundary k-1 -> k, index k-1."""
+    n = len(landmarks)
+    if cfg.switches == "switchable":
+        return np.array([switch_clipped(result, S(k)) for k in range(1, n)])
+    phi = 1.0 / cfg.switch_sigma**2
+    return np.array([dcs_switch_value(landmarks[k - 1], landmarks[k], cfg.still_sigma_m, phi) for k in range(1, n)])
+
+
+def landmarks_of(result: gtsam.Values, n: int) -> np.ndarray:
+    return np.array([np.asarray(result.atPoint3(L(k))) for k in range(n)]).reshape(n, 3)
+
+
+def nearest_candidates(candidates: np.ndarray, target: np.ndarray) -> np.ndarray:
+    """Per row, the alias candidate (NaN-padded (M, K, 3)) nearest ``target`` (M, 3)."""
+    d = np.linalg.norm(candidates - target[:, None, :], axis=2)
+    d = np.where(np.isfinite(d), d, np.inf)
+    best = np.argmin(d, axis=1)
+    return candidates[np.arange(len(candidates)), best]
+
+
+def robust_point(world: np.ndarray, cov: np.ndarray, cfg: GraphConfig,
+                 start: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
+    """One landmark from many detections: robust LM solve and its marginal covariance (m^2)."""
+    graph = gtsam.NonlinearFactorGraph()
+    add_detection_factors(graph, np.full(len(world), L(0)), world, cov, cfg.noise)
+    values = gtsam.Values()
+    values.insert(L(0), gtsam.Point3(*(np.median(world, axis=0) if start is None else start)))
+    result = solve_lm(graph, values, cfg.max_iterations)
+    xyz = np.asarray(result.atPoint3(L(0)), dtype=float)
+    try:
+        covariance = gtsam.Marginals(graph, result).marginalCovariance(L(0))
+    except RuntimeError:  # every detection down-weighted to nothing: fall back to the sample spread
+        covariance = np.cov(world.T) + 1e-6 * np.eye(3) if len(world) > 1 else cov[0]
+    return xyz, np.asarray(covariance)
+
+
+def make_segment(rows: np.ndarray, world: np.ndarray, cov: np.ndarray, cfg: GraphConfig,
+                 start: np.ndarray | None = None, camera: np.ndarray | None = None) -> Segment:
+    """Robust centre of the detections ``rows`` and whether they show a stand: enough inliers,
+    a large enough inlier share, and not moving along with the camera (``camera`` given)."""
+    xyz, c = robust_point(world[rows], cov[rows], cfg, start)
+    inl = mahalanobis2(world[rows], xyz, cov[rows]) <= cfg.inlier_chi2
+    seg = Segment(rows, xyz, c, inl)
+    seg.stationary = (seg.n_inliers >= cfg.min_observations and seg.n_inliers >= cfg.min_inlier_share * len(rows)
+                      and not (camera is not None and moves_with_camera(world[rows], camera[rows], cfg)))
+    return seg
+
+
+def moves_with_camera(world: np.ndarray, camera: np.ndarray, cfg: GraphConfig) -> bool:
+    """An object in hand keeps its offset to the head while both move through the room: its
+    world points spread more than its head-relative offsets do (metres, medians)."""
+    spread_world = np.median(np.linalg.norm(world - np.median(world, axis=0), axis=1))
+    rel = world - camera
+    spread_rel = np.median(np.linalg.norm(rel - np.median(rel, axis=0), axis=1))
+    return bool(spread_world > cfg.still_sigma_m and spread_world > spread_rel)
+
+
+def classify_moving(segs: list[Segment], range_m: np.ndarray, cfg: GraphConfig) -> list[Segment]:
+    """Mark carries among the non-stationary segments and drop the rest (scattered false
+    matches: they neither hold a place nor show the object moving)."""
+    out = []
+    for seg in segs:
+        if not seg.stationary:
+            seg.carried = int((range_m[seg.rows] <= cfg.carry_range_m).sum()) >= cfg.min_carry_observations
+            if not seg.carried:
+                continue
+        out.append(seg)
+    return out
+
+
+def _merge_pair(segs: list[Segment], radius_m: float) -> tuple[int, int] | None:
+    """First pair (a, b) of stationary segments at the same place whose in-between
+    stationary segments are all weaker (fewer inliers) than both."""
+    stat = [i for i, s in enumerate(segs) if s.stationary]
+    for j, a in enumerate(stat):
+        for b in stat[j + 1:]:
+            sa, sb = segs[a], segs[b]
+            if np.linalg.norm(sa.xyz - sb.xyz) <= radius_m:
+                return a, b
+            if sb.n_inliers >= sa.n_inliers:
+                break  # a stronger stand in between: the object really moved
+    return None
+
+
+def merge_segments(segs: list[Segment], world: np.ndarray, cov: np.ndarray, cfg: GraphConfig) -> list[Segment]:
+    """Merge stationary segments at the same place (within ``merge_radius_m``) when every
+    stationary segment between them is weaker: those were false matches (a look-alike seen
+    while the object stood still), or the object was put back where it stood."""
+    while (pair := _merge_pair(segs, cfg.merge_radius_m)) is not None:
+        a, b = pair
+        sa, sb = segs[a], segs[b]
+        merged = make_segment(np.sort(np.concatenate([sa.rows, sb.rows])), world, cov, cfg,
+                              start=(sa.xyz + sb.xyz) / 2)
+        merged.stationary = True
+        segs = segs[:a] + [merged] + segs[b + 1:]
+    return segs
+
+
+# --------------------------------------------------------------------------- per instance
+
+
+def _solve_instance_offline(world, cov, candidates, chunk, cfg: GraphConfig):
+    n = int(chunk.max()) + 1
+    init = chunk_medians(world, chunk, n)
+    for round_ in range(max(0, cfg.alias_rounds) + 1):
+        graph, values = instance_graph(world, cov, chunk, init, cfg)
+        result = solve_lm(graph, values, cfg.max_iterations)
+        landmarks = landmarks_of(result, n)
+        if round_ == cfg.alias_rounds or candidates is None:
+            break
+        better = nearest_candidates(candidates, landmarks[chunk])
+        if np.allclose(better, world, equal_nan=True):
+            break
+        world = better
+        init = landmarks
+    return world, landmarks, switch_values(result, landmarks, cfg)
+
+
+def segments_from_switches(chunk: np.ndarray, switches: np.ndarray, break_below: float) -> list[np.ndarray]:
+    """Row indices of each run of chunks joined by switches >= ``break_below``."""
+    starts = np.concatenate([[0], np.flatnonzero(switches < break_below) + 1])
+    seg_of_chunk = np.searchsorted(starts, np.arange(len(switches) + 1), "right") - 1
+    seg_of_row = seg_of_chunk[chunk]
+    return [np.flatnonzero(seg_of_row == g) for g in range(len(starts))]
+
+
+def _confidence(seg: Segment, n_rows: int, cfg: GraphConfig) -> float:
+    share = seg.n_inliers / max(n_rows, 1)
+    return float(share * (1.0 - math.exp(-seg.n_inliers / cfg.confidence_scale)))
+
+
+NegativeFn = Callable[[int, np.ndarray, int, int], int | None]
+"""``(instance, xyz, frame_from, frame_to) -> first frame index in [from, to) whose depth
+shows the place empty, or None``."""
+
+
+def intervals_from_segments(instance: int, segs: list[Segment], t_frames: np.ndarray, frame_of_row: np.ndarray,
+                            cfg: GraphConfig, backfill_start: bool, negative: NegativeFn | None) -> list[PositionInterval]:
+    """Place stationary segments in time (module doc, step 8). ``t_frames``: PV frame ticks (sorted)."""
+    out: list[PositionInterval] = []
+    n_frames = len(t_frames)
+    fps = (n_frames - 1) / max((t_frames[-1] - t_frames[0]) / TICKS_PER_SECOND, 1e-9) if n_frames > 1 else 30.0
+    backfill = int(round(cfg.backfill_max_s * fps))
+    for g, seg in enumerate(segs):
+        if not seg.stationary:
+            continue
+        inl_frames = frame_of_row[seg.rows[seg.inliers]]
+        first, last = int(inl_frames.min()), int(inl_frames.max())
+        # Start: the end of the previous interval, or right after the previous (carried) segment's
+        # last detection, or the recording's start for an instance's first interval (offline).
+        prev = segs[g - 1] if g else None
+        if prev is None:
+            start = 0 if backfill_start else first
+        elif out and prev.stationary:
+            start = first  # the previous interval runs up to this one
+        else:
+            start = max(int(frame_of_row[prev.rows].max()) + 1, first - backfill)
+            if out:
+                start = max(start, out[-1].extra["end_frame"] + 1)
+        # End: the frame before the next segment's first detection, or the recording's end.
+        nxt = segs[g + 1] if g + 1 < len(segs) else None
+        end = int(frame_of_row[nxt.rows].min()) - 1 if nxt is not None else n_frames - 1
+        ended_by = "detection" if nxt is not None else "end"
+        if negative is not None and end > last:
+            gone = negative(instance, seg.xyz, last + 1, end + 1)
+            if gone is not None:
+                end, ended_by = gone - 1, "negative"
+        end = max(end, last)
+        cov = seg.covariance + cfg.covariance_floor_m**2 * np.eye(3)
+        out.append(PositionInterval(
+            instance=int(instance), t_start=int(t_frames[start]), t_end=int(t_frames[end]),
+            xyz=tuple(float(v) for v in seg.xyz), covariance=cov.tolist(), n_observations=seg.n_inliers,
+            confidence=_confidence(seg, len(seg.rows), cfg), first_seen=int(t_frames[first]),
+            last_seen=int(t_frames[last]), backfilled=bool(prev is None and backfill_start and start < first),
+            ended_by=ended_by, extra={"end_frame": end, "start_frame": start},
+        ))
+    # An end shortened by negative evidence leaves the frames after it to the next interval's start rule.
+    return out
+
+
+def track_instance_offline(instance: int, obs: Observations, t_frames: np.ndarray, cfg: GraphConfig,
+                           negative: NegativeFn | None = None) -> InstanceSolution:
+    """Offline solve of one instance's observations (already filtered and time-sorted)."""
+    if len(obs) == 0:
+        return InstanceSolution(instance, [])
+    t_s = (obs.timestamps - t_frames[0]) / TICKS_PER_SECOND
+    chunk = chunk_index(t_s, cfg.chunk_s)
+    cov = detection_covariances(obs.world, obs.camera, cfg.noise)
+    cands = obs.candidates if cfg.alias_rounds > 0 and obs.candidates.shape[1] > 1 else None
+    world, _, switches = _solve_instance_offline(obs.world, cov, cands, chunk, cfg)
+    if cands is not None:
+        cov = detection_covariances(world, obs.camera, cfg.noise)
+    segs = [make_segment(rows, world, cov, cfg, camera=obs.camera)
+            for rows in segments_from_switches(chunk, switches, cfg.break_below)]
+    segs = merge_segments(classify_moving(segs, obs.range_m, cfg), world, cov, cfg)
+    intervals = intervals_from_segments(instance, segs, t_frames, obs.frame.astype(np.int64), cfg,
+                                        backfill_start=True, negative=negative)
+    return InstanceSolution(instance, intervals, switches, len(obs), int(chunk.max()) + 1)
+
+
+# --------------------------------------------------------------------------- causal (iSAM2)
+
+
+def track_instance_causal(instance: int, obs: Observations, t_frames: np.ndarray, cfg: GraphConfig,
+                          negative: NegativeFn | None = None) -> InstanceSolution:
+    """Causal solve: iSAM2 grows the graph chunk by chunk; each frame reports what the
+    observations up to the end of the previous chunk support (no look-ahead).
+
+    The state after chunk k: the trailing segment (chunks back to the last switch that is
+    off) is stationary when its robust centre explains enough of its detections; then the
+    instance is reported there until the next chunk changes that. A trailing segment that is
+    not (yet) stationary means the object is moving, or unconfirmed: nothing is reported.
+    """
+    if len(obs) == 0:
+        return InstanceSolution(instance, [])
+    t_s = (obs.timestamps - t_frames[0]) / TICKS_PER_SECOND
+    chunk = chunk_index(t_s, cfg.chunk_s)
+    n = int(chunk.max()) + 1
+    world = obs.world.copy()
+    cov = detection_covariances(world, obs.camera, cfg.noise)
+    init = chunk_medians(world, chunk, n)
+    frames = obs.frame.astype(np.int64)
+    params = gtsam.ISAM2Params()
+    params.setRelinearizeThreshold(0.01)
+    isam = gtsam.ISAM2(params)
+    bounds = np.searchsorted(chunk, np.arange(n + 1))  # chunk is sorted (time-sorted rows)
+    seg_start = 0  # first chunk of the trailing segment
+    state: list[tuple[int, Segment | None]] = []  # (first frame the state applies to, stationary segment)
+    switches = []
+    for k in range(n):
+        graph = gtsam.NonlinearFactorGraph()
+        values = gtsam.Values()
+        values.insert(L(k), gtsam.Point3(*init[k]))
+        if k:
+            add_break_factors(graph, values, k, cfg)
+        rows = np.arange(bounds[k], bounds[k + 1])
+        add_detection_factors(graph, np.full(len(rows), L(k)), world[rows], cov[rows], cfg.noise)
+        isam.update(graph, values)
+        isam.update()
+        here = np.asarray(isam.calculateEstimatePoint3(L(k)), dtype=float)
+        if k:
+            if cfg.switches == "switchable":
+                sw = min(1.0, max(0.0, float(isam.calculateEstimateVector(S(k))[0])))
+            else:
+                sw = dcs_switch_value(np.asarray(isam.calculateEstimatePoint3(L(k - 1))), here,
+                                      cfg.still_sigma_m, 1.0 / cfg.switch_sigma**2)
+            switches.append(sw)
+            if sw < cfg.break_below:
+                seg_start = k
+        seg_rows = np.arange(bounds[seg_start], bounds[k + 1])
+        seg = make_segment(seg_rows, world, cov, cfg, start=here, camera=obs.camera)
+        # The state holds from the frame after this chunk's last detection.
+        state.append((int(frames[rows[-1]]) + 1, seg if seg.stationary else None))
+    return InstanceSolution(instance, _causal_intervals(instance, state, frames, t_frames, cfg, negative),
+                            np.array(switches), len(obs), n)
+
+
+def _causal_intervals(instance: int, state: list, frames: np.ndarray, t_frames: np.ndarray, cfg: GraphConfig,
+                      negative: NegativeFn | None) -> list[PositionInterval]:
+    """Piecewise-constant reports from the causal states: one interval per state, covering the
+    frames from the state's first frame to the frame before the next state."""
+    out: list[PositionInterval] = []
+    n_frames = len(t_frames)
+    for j, (f0, seg) in enumerate(state):
+        if seg is None or f0 >= n_frames:
+            continue
+        f1 = state[j + 1][0] - 1 if j + 1 < len(state) else n_frames - 1
+        f1 = min(f1, n_frames - 1)
+        if f1 < f0:
+            continue
+        ended_by = "detection" if j + 1 < len(state) else "end"
+        if negative is not None:
+            last = int(frames[seg.rows[seg.inliers]].max())
+            gone = negative(instance, seg.xyz, max(f0, last + 1), f1 + 1)
+            if gone is not None:
+                f1, ended_by = gone - 1, "negative"
+            if f1 < f0:
+                continue
+        inl_frames = frames[seg.rows[seg.inliers]]
+        cov = seg.covariance + cfg.covariance_floor_m**2 * np.eye(3)
+        out.append(PositionInterval(
+            instance=int(instance), t_start=int(t_frames[f0]), t_end=int(t_frames[f1]),
+            xyz=tuple(float(v) for v in seg.xyz), covariance=cov.tolist(), n_observations=seg.n_inliers,
+            confidence=_confidence(seg, len(seg.rows), cfg), first_seen=int(t_frames[inl_frames.min()]),
+            last_seen=int(t_frames[inl_frames.max()]), ended_by=ended_by,
+            extra={"start_frame": f0, "end_frame": f1},
+        ))
+    return out
+
+
+# --------------------------------------------------------------------------- whole recording
+
+
+def select_instance_rows(obs: Observations, instance: int, threshold: float) -> Observations:
+    score = np.asarray(obs.score, dtype=np.float32)
+    mask = (obs.instance == instance) & obs.valid & (score >= np.float32(threshold))
+    sub = obs.select(mask)
+    order = np.argsort(sub.timestamps, kind="stable")
+    return sub.select(order)
+
+
+def graph_tracker(obs: Observations, timestamps: Sequence[int], cfg: GraphConfig, *, causal: bool = False,
+                  negative: NegativeFn | None = None, instances: Sequence[int] | None = None,
+                  progress: bool = False) -> GraphResult:
+    """Run the graph tracker over a recording's observations.
+
+    ``timestamps``: the PV frames (ticks); observations must sit on them (``obs.frame`` is
+    the index into the sorted timestamps). ``negative``: optional negative-evidence test
+    (:func:`egograph.track.negative.negative_evidence_fn`). Returns intervals, the per-frame
+    predictions in the reference format and metadata for the output JSON.
+    """
+    t_frames = np.asarray(sorted(int(t) for t in timestamps), dtype=np.int64)
+    ids = sorted({int(i) for i in obs.instance}) if instances is None else list(instances)
+    solve = track_instance_causal if causal else track_instance_offline
+    solutions = []
+    it = ids
+    if progress:
+        from tqdm import tqdm
+
+        it = tqdm(ids, desc="graph" + (" (causal)" if causal else ""), unit="instance")
+    for inst in it:
+        sub = select_instance_rows(obs, inst, cfg.score_threshold)
+        solutions.append(solve(inst, sub, t_frames, cfg, negative))
+    intervals = sorted((iv for s in solutions for iv in s.intervals), key=lambda iv: (iv.instance, iv.t_start))
+    per_frame = per_frame_predictions(intervals, t_frames)
+    metadata = {
+        "tracker": "graph-causal" if causal else "graph",
+        "backfilled": (not causal),
+        "backfill_note": ("offline: an instance's first interval is extended back to the first frame of the "
+                          "recording (intervals with backfilled=true)") if not causal else "causal: no back-fill",
+        "switches": cfg.switches,
+        "negative_evidence": negative is not None,
+        "n_observations": int(sum(s.n_observations for s in solutions)),
+        "n_chunks": int(sum(s.n_chunks for s in solutions)),
+    }
+    return GraphResult(intervals, per_frame, solutions, metadata)

@@ -1,0 +1,86 @@
+"""Switchable motion-break factors between consecutive landmarks of one instance.
+
+A still object's landmarks ``L_k`` and ``L_{k+1}`` (``gtsam.Point3``, world frame,
+metres) should coincide. The *switchable* zero-motion between-factor of Sünderhauf &
+Protzel (IROS 2012) scales that constraint by a switch variable ``s`` (a 1-vector):
+
+    e(L_k, L_{k+1}, s) = psi(s) * (L_{k+1} - L_k),      psi(s) = clip(s, 0, 1)
+
+whitened by an isotropic ``still_sigma_m``, with a prior pulling ``s`` to 1. Where the
+object was moved, the optimiser pays the prior to turn the switch off instead of
+dragging both landmarks together. The switch prior's sigma sets the price: with the
+landmarks held fixed at a whitened gap ``d = |L_{k+1} - L_k| / still_sigma``, the switch
+settles at ``s = 1 / (1 + d^2 sigma_s^2)``, so ``s < 0.5`` exactly when
+``d > 1 / sigma_s``.
+
+Dynamic covariance scaling (DCS, Agarwal et al. ICRA 2013) is the closed form of the same
+idea: the switch is eliminated analytically, ``s = min(1, 2 phi / (phi + d^2))``, and
+GTSAM applies it as an m-estimator inside a plain ``BetweenFactorPoint3`` (all C++, no
+Python callback). :func:`dcs_between` builds it; :func:`dcs_switch_value` recovers the
+implied switch for reporting. ``phi = 1 / sigma_s^2`` makes the two agree on where a
+break is (see the tests).
+
+The switch factor is a ``gtsam.CustomFactor`` with analytic Jacobians: there are few of
+them (one per chunk boundary), while the many detection factors stay C++ factors.
+"""
+
+from __future__ import annotations
+
+from functools import partial
+
+import gtsam
+import numpy as np
+
+
+def switch_weight(s: float) -> tuple[float, float]:
+    """``psi(s) = clip(s, 0, 1)`` and its derivative: 1 on the closed interval [0, 1] (the
+    one-sided slope at the ends, so a switch starting at exactly 1 can move), 0 outside."""
+    if s < 0.0:
+        return 0.0, 0.0
+    if s > 1.0:
+        return 1.0, 0.0
+    return float(s), 1.0
+
+
+def _switchable_error(this: gtsam.CustomFactor, values: gtsam.Values, H: list | None) -> np.ndarray:
+    ka, kb, ks = this.keys()
+    a = values.atPoint3(ka)
+    b = values.atPoint3(kb)
+    s = float(values.atVector(ks)[0])
+    w, dw = switch_weight(s)
+    delta = np.asarray(b, dtype=float) - np.asarray(a, dtype=float)
+    if H is not None:
+        H[0] = -w * np.eye(3)
+        H[1] = w * np.eye(3)
+        H[2] = (dw * delta).reshape(3, 1)
+    return w * delta
+
+
+def switchable_between(key_a: int, key_b: int, key_switch: int, still_sigma_m: float) -> gtsam.CustomFactor:
+    """``SwitchableBetween``: zero motion from landmark ``key_a`` to ``key_b`` (Point3,
+    metres), weighted by the switch ``key_switch`` (1-vector); isotropic sigma in metres."""
+    noise = gtsam.noiseModel.Isotropic.Sigma(3, still_sigma_m)
+    return gtsam.CustomFactor(noise, [key_a, key_b, key_switch], partial(_switchable_error))
+
+
+def switch_prior(key_switch: int, switch_sigma: float) -> gtsam.PriorFactorVector:
+    """Prior pulling a switch to 1 (the constraint is on) with sigma ``switch_sigma``."""
+    return gtsam.PriorFactorVector(key_switch, np.array([1.0]), gtsam.noiseModel.Isotropic.Sigma(1, switch_sigma))
+
+
+def dcs_between(key_a: int, key_b: int, still_sigma_m: float, phi: float) -> gtsam.BetweenFactorPoint3:
+    """The DCS fast path: zero-motion ``BetweenFactorPoint3`` under a DCS kernel ``phi``."""
+    base = gtsam.noiseModel.Isotropic.Sigma(3, still_sigma_m)
+    robust = gtsam.noiseModel.Robust.Create(gtsam.noiseModel.mEstimator.DCS.Create(phi), base)
+    return gtsam.BetweenFactorPoint3(key_a, key_b, gtsam.Point3(0, 0, 0), robust)
+
+
+def dcs_switch_value(a: np.ndarray, b: np.ndarray, still_sigma_m: float, phi: float) -> float:
+    """The switch DCS implies for landmarks ``a``, ``b`` (metres): ``min(1, 2 phi / (phi + d^2))``."""
+    d2 = float(np.sum((np.asarray(b) - np.asarray(a)) ** 2)) / still_sigma_m**2
+    return min(1.0, 2.0 * phi / (phi + d2))
+
+
+def switch_clipped(values: gtsam.Values, key_switch: int) -> float:
+    """The effective switch ``psi(s)`` of a solved switch variable."""
+    return switch_weight(float(values.atVector(key_switch)[0]))[0]
