@@ -46,11 +46,16 @@ from egograph.track.detection_factor import (
     DetectionNoiseConfig, add_detection_factors, detection_covariances, mahalanobis2, robust,
 )
 from egograph.track.intervals import PositionInterval, per_frame_predictions
+from egograph.track.negative import NegativeConfig
 from egograph.track.switchable import (
     dcs_between, dcs_switch_value, switch_clipped, switch_prior, switchable_between,
 )
 
 TICKS_PER_SECOND = 1e7
+
+NegativeFn = Callable[[int, np.ndarray, int, int], "int | None"]
+"""``(instance, xyz, frame_from, frame_to) -> first frame index in [from, to) whose depth
+shows the place empty, or None`` (:class:`egograph.track.negative.NegativeEvidence`)."""
 
 
 @dataclass
@@ -72,6 +77,11 @@ class GraphConfig:
     min_carry_observations: int = knob(2, "a non-stationary segment with at least this many detections within "
                                           "carry_range_m is a carry (it ends the interval before it); with fewer "
                                           "it is taken for scattered false matches and ignored")
+    carry_spread_m: float = knob(0.03, "a near segment whose detections spread more than this (median, metres) "
+                                       "and more than their offsets to the head do is an object in hand")
+    exclusion_radius_m: float = knob(0.15, "offline: a stand of one instance within this distance of another "
+                                           "instance's better-supported interval at the same time is a look-alike "
+                                           "confusion and is dropped, metres (0 disables)")
     backfill_max_s: float = knob(3.0, "after a carried stretch, an interval starts at most this long before its "
                                       "first detection, s")
     covariance_floor_m: float = knob(0.03, "isotropic sigma added to every interval covariance for errors shared "
@@ -79,8 +89,10 @@ class GraphConfig:
     confidence_scale: float = knob(5.0, "inlier count at which confidence reaches 63 % of the inlier share")
     alias_rounds: int = knob(1, "re-solves after re-choosing each detection's AHAT alias candidate")
     max_iterations: int = knob(50, "Levenberg-Marquardt iteration limit")
-    negative_evidence: bool = knob(True, "end intervals where depth shows the place empty (needs depth frames)")
+    negative_evidence: bool = knob(True, "end intervals where depth shows the place empty, and keep apart stands "
+                                         "at one place with such evidence between them (reads depth frames)")
     noise: DetectionNoiseConfig = section(DetectionNoiseConfig, "detection factor noise and robust kernel")
+    negative: NegativeConfig = section(NegativeConfig, "negative evidence from depth")
 
 
 @dataclass
@@ -106,6 +118,10 @@ class InstanceSolution:
     switches: np.ndarray = field(default_factory=lambda: np.zeros(0))  # effective switch per chunk boundary
     n_observations: int = 0
     n_chunks: int = 0
+    segments: list[Segment] = field(default_factory=list)  # offline: stands and carries, in time order
+    world: np.ndarray | None = None   # per observation, after alias re-choice, metres
+    cov: np.ndarray | None = None     # per observation detection covariance, m^2
+    frames: np.ndarray | None = None  # per observation PV frame index
 
 
 @dataclass
@@ -213,24 +229,30 @@ def robust_point(world: np.ndarray, cov: np.ndarray, cfg: GraphConfig,
 
 
 def make_segment(rows: np.ndarray, world: np.ndarray, cov: np.ndarray, cfg: GraphConfig,
-                 start: np.ndarray | None = None, camera: np.ndarray | None = None) -> Segment:
+                 start: np.ndarray | None = None, camera: np.ndarray | None = None,
+                 range_m: np.ndarray | None = None) -> Segment:
     """Robust centre of the detections ``rows`` and whether they show a stand: enough inliers,
     a large enough inlier share, and not moving along with the camera (``camera`` given)."""
     xyz, c = robust_point(world[rows], cov[rows], cfg, start)
     inl = mahalanobis2(world[rows], xyz, cov[rows]) <= cfg.inlier_chi2
     seg = Segment(rows, xyz, c, inl)
+    in_hand = camera is not None and range_m is not None and moves_with_camera(
+        world[rows], camera[rows], range_m[rows], cfg)
     seg.stationary = (seg.n_inliers >= cfg.min_observations and seg.n_inliers >= cfg.min_inlier_share * len(rows)
-                      and not (camera is not None and moves_with_camera(world[rows], camera[rows], cfg)))
+                      and not in_hand)
     return seg
 
 
-def moves_with_camera(world: np.ndarray, camera: np.ndarray, cfg: GraphConfig) -> bool:
-    """An object in hand keeps its offset to the head while both move through the room: its
-    world points spread more than its head-relative offsets do (metres, medians)."""
+def moves_with_camera(world: np.ndarray, camera: np.ndarray, range_m: np.ndarray, cfg: GraphConfig) -> bool:
+    """An object in hand is near the head (median range <= ``carry_range_m``) and keeps its
+    offset to it while both move through the room: its world points spread (median, metres)
+    more than ``carry_spread_m`` and more than its head-relative offsets do."""
+    if np.median(range_m) > cfg.carry_range_m:
+        return False
     spread_world = np.median(np.linalg.norm(world - np.median(world, axis=0), axis=1))
     rel = world - camera
     spread_rel = np.median(np.linalg.norm(rel - np.median(rel, axis=0), axis=1))
-    return bool(spread_world > cfg.still_sigma_m and spread_world > spread_rel)
+    return bool(spread_world > cfg.carry_spread_m and spread_world > spread_rel)
 
 
 def classify_moving(segs: list[Segment], range_m: np.ndarray, cfg: GraphConfig) -> list[Segment]:
@@ -246,25 +268,37 @@ def classify_moving(segs: list[Segment], range_m: np.ndarray, cfg: GraphConfig) 
     return out
 
 
-def _merge_pair(segs: list[Segment], radius_m: float) -> tuple[int, int] | None:
+def _merge_pair(segs: list[Segment], radius_m: float, apart: Callable[[Segment, Segment], bool]) -> tuple[int, int] | None:
     """First pair (a, b) of stationary segments at the same place whose in-between
-    stationary segments are all weaker (fewer inliers) than both."""
+    stationary segments are all weaker (fewer inliers) than both, and not kept ``apart``."""
     stat = [i for i, s in enumerate(segs) if s.stationary]
     for j, a in enumerate(stat):
         for b in stat[j + 1:]:
             sa, sb = segs[a], segs[b]
             if np.linalg.norm(sa.xyz - sb.xyz) <= radius_m:
+                if apart(sa, sb):
+                    break
                 return a, b
             if sb.n_inliers >= sa.n_inliers:
                 break  # a stronger stand in between: the object really moved
     return None
 
 
-def merge_segments(segs: list[Segment], world: np.ndarray, cov: np.ndarray, cfg: GraphConfig) -> list[Segment]:
+def merge_segments(segs: list[Segment], world: np.ndarray, cov: np.ndarray, cfg: GraphConfig,
+                   instance: int = -1, frames: np.ndarray | None = None,
+                   negative: NegativeFn | None = None) -> list[Segment]:
     """Merge stationary segments at the same place (within ``merge_radius_m``) when every
     stationary segment between them is weaker: those were false matches (a look-alike seen
-    while the object stood still), or the object was put back where it stood."""
-    while (pair := _merge_pair(segs, cfg.merge_radius_m)) is not None:
+    while the object stood still), or the object was put back where it stood. With negative
+    evidence, two stands between which the place was seen empty stay apart (that switch is off)."""
+    def apart(sa: Segment, sb: Segment) -> bool:
+        if negative is None or frames is None:
+            return False
+        last = int(frames[sa.rows[sa.inliers]].max())
+        first = int(frames[sb.rows[sb.inliers]].min())
+        return first > last + 1 and negative(instance, (sa.xyz + sb.xyz) / 2, last + 1, first) is not None
+
+    while (pair := _merge_pair(segs, cfg.merge_radius_m, apart)) is not None:
         a, b = pair
         sa, sb = segs[a], segs[b]
         merged = make_segment(np.sort(np.concatenate([sa.rows, sb.rows])), world, cov, cfg,
@@ -305,11 +339,6 @@ def segments_from_switches(chunk: np.ndarray, switches: np.ndarray, break_below:
 def _confidence(seg: Segment, n_rows: int, cfg: GraphConfig) -> float:
     share = seg.n_inliers / max(n_rows, 1)
     return float(share * (1.0 - math.exp(-seg.n_inliers / cfg.confidence_scale)))
-
-
-NegativeFn = Callable[[int, np.ndarray, int, int], int | None]
-"""``(instance, xyz, frame_from, frame_to) -> first frame index in [from, to) whose depth
-shows the place empty, or None``."""
 
 
 def intervals_from_segments(instance: int, segs: list[Segment], t_frames: np.ndarray, frame_of_row: np.ndarray,
@@ -358,7 +387,8 @@ def intervals_from_segments(instance: int, segs: list[Segment], t_frames: np.nda
 
 def track_instance_offline(instance: int, obs: Observations, t_frames: np.ndarray, cfg: GraphConfig,
                            negative: NegativeFn | None = None) -> InstanceSolution:
-    """Offline solve of one instance's observations (already filtered and time-sorted)."""
+    """Offline solve of one instance's observations (already filtered and time-sorted):
+    segments (``solution.segments``) and the intervals placed from them."""
     if len(obs) == 0:
         return InstanceSolution(instance, [])
     t_s = (obs.timestamps - t_frames[0]) / TICKS_PER_SECOND
@@ -368,12 +398,49 @@ def track_instance_offline(instance: int, obs: Observations, t_frames: np.ndarra
     world, _, switches = _solve_instance_offline(obs.world, cov, cands, chunk, cfg)
     if cands is not None:
         cov = detection_covariances(world, obs.camera, cfg.noise)
-    segs = [make_segment(rows, world, cov, cfg, camera=obs.camera)
+    segs = [make_segment(rows, world, cov, cfg, camera=obs.camera, range_m=obs.range_m)
             for rows in segments_from_switches(chunk, switches, cfg.break_below)]
-    segs = merge_segments(classify_moving(segs, obs.range_m, cfg), world, cov, cfg)
-    intervals = intervals_from_segments(instance, segs, t_frames, obs.frame.astype(np.int64), cfg,
-                                        backfill_start=True, negative=negative)
-    return InstanceSolution(instance, intervals, switches, len(obs), int(chunk.max()) + 1)
+    frames = obs.frame.astype(np.int64)
+    segs = merge_segments(classify_moving(segs, obs.range_m, cfg), world, cov, cfg, instance, frames, negative)
+    sol = InstanceSolution(instance, [], switches, len(obs), int(chunk.max()) + 1)
+    sol.segments, sol.world, sol.cov, sol.frames = segs, world, cov, frames
+    sol.intervals = intervals_from_segments(instance, segs, t_frames, sol.frames, cfg, backfill_start=True,
+                                            negative=negative)
+    return sol
+
+
+def claimed_by_others(seg: Segment, frames: np.ndarray, instance: int, intervals: Sequence[PositionInterval],
+                      t_frames: np.ndarray, radius_m: float) -> bool:
+    """Two objects cannot stand in one place: a stand of ``instance`` inside another instance's
+    better-supported interval, at the same time and within ``radius_m``, is a look-alike confusion."""
+    f = frames[seg.rows[seg.inliers]]
+    t0, t1 = int(t_frames[f.min()]), int(t_frames[f.max()])
+    for iv in intervals:
+        if (iv.instance != instance and iv.t_start <= t1 and iv.t_end >= t0 and iv.n_observations > seg.n_inliers
+                and np.linalg.norm(np.asarray(iv.xyz) - seg.xyz) <= radius_m):
+            return True
+    return False
+
+
+def exclude_confusions(solutions: list[InstanceSolution], t_frames: np.ndarray, cfg: GraphConfig,
+                       negative: NegativeFn | None) -> int:
+    """Drop every stand that another instance claims (:func:`claimed_by_others`), re-merge and
+    re-place the affected instances' intervals. Returns the number of stands dropped."""
+    everyone = [iv for s in solutions for iv in s.intervals]
+    dropped = 0
+    for sol in solutions:
+        if not sol.segments:
+            continue
+        keep = [seg for seg in sol.segments if not (
+            seg.stationary and claimed_by_others(seg, sol.frames, sol.instance, everyone, t_frames,
+                                                 cfg.exclusion_radius_m))]
+        if len(keep) == len(sol.segments):
+            continue
+        dropped += len(sol.segments) - len(keep)
+        sol.segments = merge_segments(keep, sol.world, sol.cov, cfg, sol.instance, sol.frames, negative)
+        sol.intervals = intervals_from_segments(sol.instance, sol.segments, t_frames, sol.frames, cfg,
+                                                backfill_start=True, negative=negative)
+    return dropped
 
 
 # --------------------------------------------------------------------------- causal (iSAM2)
@@ -426,7 +493,7 @@ def track_instance_causal(instance: int, obs: Observations, t_frames: np.ndarray
             if sw < cfg.break_below:
                 seg_start = k
         seg_rows = np.arange(bounds[seg_start], bounds[k + 1])
-        seg = make_segment(seg_rows, world, cov, cfg, start=here, camera=obs.camera)
+        seg = make_segment(seg_rows, world, cov, cfg, start=here, camera=obs.camera, range_m=obs.range_m)
         # The state holds from the frame after this chunk's last detection.
         state.append((int(frames[rows[-1]]) + 1, seg if seg.stationary else None))
     return InstanceSolution(instance, _causal_intervals(instance, state, frames, t_frames, cfg, negative),
@@ -499,6 +566,9 @@ def graph_tracker(obs: Observations, timestamps: Sequence[int], cfg: GraphConfig
     for inst in it:
         sub = select_instance_rows(obs, inst, cfg.score_threshold)
         solutions.append(solve(inst, sub, t_frames, cfg, negative))
+    n_excluded = 0
+    if not causal and cfg.exclusion_radius_m > 0:
+        n_excluded = exclude_confusions(solutions, t_frames, cfg, negative)
     intervals = sorted((iv for s in solutions for iv in s.intervals), key=lambda iv: (iv.instance, iv.t_start))
     per_frame = per_frame_predictions(intervals, t_frames)
     metadata = {
@@ -510,5 +580,6 @@ def graph_tracker(obs: Observations, timestamps: Sequence[int], cfg: GraphConfig
         "negative_evidence": negative is not None,
         "n_observations": int(sum(s.n_observations for s in solutions)),
         "n_chunks": int(sum(s.n_chunks for s in solutions)),
+        "n_stands_excluded": n_excluded,
     }
     return GraphResult(intervals, per_frame, solutions, metadata)

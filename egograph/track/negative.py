@@ -1,0 +1,190 @@
+"""Negative evidence: the place is in view, the depth shows it empty, and no detection fires.
+
+For a landmark ``xyz`` (world, metres) and a PV frame, the test is:
+
+1. *in view*: ``xyz`` projects inside the PV image (with a margin) in front of the camera,
+   within ``negative_max_range_m`` of the AHAT camera; the instance has no accepted
+   detection near the landmark in that frame;
+2. *depth*: in a small AHAT pixel window around the landmark's projection, each valid pixel
+   reads a wrapped range ``m``. The HoloLens mesh (static scene), ray cast along the same
+   pixel ray, gives the range ``M`` of the surface behind. With ``R`` the landmark's range
+   and ranges compared modulo the alias distance (AHAT wraps):
+
+   * *empty* pixel: the mesh surface lies clearly behind the landmark (``M > R + margin``),
+     the reading agrees with the mesh, and disagrees with the landmark;
+   * *occupied* pixel: the reading agrees with the landmark's range;
+   * anything else (an occluder in front, no mesh) is no evidence either way;
+
+3. a frame says *empty* when most valid window pixels are empty, *occupied* when at least
+   half are occupied. The object is gone from the first of ``negative_min_frames``
+   consecutive empty frames (checked every ``negative_stride`` frames); an occupied frame
+   resets the count.
+
+Depth frames are decoded lazily and cached, so only frames where some landmark is in
+view during a gap are read.
+"""
+
+from __future__ import annotations
+
+from collections import OrderedDict
+from dataclasses import dataclass
+
+import numpy as np
+
+from egograph.config import knob
+from egograph.geometry.hl2ss import (
+    ahat_project, ahat_to_world_matrix, invert_rigid, pose_validity, pv_project, transform_points,
+)
+from egograph.geometry.observations import Observations
+
+
+@dataclass
+class NegativeConfig:
+    margin_m: float = knob(0.15, "a pixel is empty when the scene surface is this much behind the landmark and the "
+                                 "reading disagrees with the landmark's range by as much, metres")
+    agree_m: float = knob(0.05, "a reading agrees with a range within this (modulo the alias distance), metres")
+    max_range_m: float = knob(2.5, "only landmarks within this range of the depth camera are tested, metres")
+    window_px: int = knob(2, "half side of the AHAT pixel window around the landmark's projection")
+    image_margin_px: float = knob(40.0, "the landmark must project this far inside the PV image, pixels")
+    min_frames: int = knob(3, "consecutive empty frames needed to say the object is gone")
+    stride: int = knob(2, "test every Nth frame of a gap")
+    empty_share: float = knob(0.6, "share of valid window pixels that must be empty for an empty frame")
+    detection_gate_m: float = knob(0.3, "a detection of the instance this close to the landmark means it is there")
+    cache_frames: int = knob(64, "decoded depth frames kept in memory")
+
+
+class NegativeEvidence:
+    """Callable ``(instance, xyz, frame_from, frame_to) -> first frame the place is seen empty, or None``."""
+
+    def __init__(self, rec, obs: Observations, cfg: NegativeConfig, score_threshold: float):
+        self.rec, self.cfg = rec, cfg
+        ahat = rec.ahat
+        self.alias = float(ahat.alias_m)
+        self.m_per_raw = float(rec.depth_factor) / float(ahat.scale)
+        uv2xy = np.asarray(ahat.uv2xy, dtype=np.float64)
+        rays = np.concatenate([uv2xy, np.ones(uv2xy.shape[:-1] + (1,))], axis=-1)
+        self.dirs = rays / np.linalg.norm(rays, axis=-1, keepdims=True)  # unit rays, AHAT camera
+        self.ahat_shape = uv2xy.shape[:2]
+        self.pv_shape = tuple(rec.pv.shape)
+        self.scene = _raycaster(rec)
+        keep = obs.valid & (np.asarray(obs.score, np.float32) >= np.float32(score_threshold))
+        self.det = {}
+        for inst in np.unique(obs.instance[keep]):
+            m = keep & (obs.instance == inst)
+            self.det[int(inst)] = (obs.frame[m].astype(np.int64), obs.world[m])
+        self._cache: OrderedDict[int, np.ndarray | None] = OrderedDict()
+        self.n_frames_read = 0
+
+    def _depth(self, i: int) -> np.ndarray | None:
+        if i in self._cache:
+            self._cache.move_to_end(i)
+            return self._cache[i]
+        raw = self.rec.depth_raw(i)
+        self.n_frames_read += 1
+        self._cache[i] = raw
+        if len(self._cache) > self.cfg.cache_frames:
+            self._cache.popitem(last=False)
+        return raw
+
+    def _in_view(self, xyz: np.ndarray, frames: np.ndarray) -> np.ndarray:
+        """Vectorised over frames: the point projects inside the PV image, in front."""
+        rec, cfg = self.rec, self.cfg
+        poses = rec.pv_poses[frames]
+        ok = rec.pv_valid[frames] & pose_validity(poses)
+        inv = np.stack([invert_rigid(p) if v else np.eye(4) for p, v in zip(poses, ok)]) if len(frames) else \
+            np.zeros((0, 4, 4))
+        cam = np.einsum("i,fij->fj", np.append(xyz, 1.0), inv)[:, :3]
+        uv, depth = pv_project(cam, rec.pv.intrinsics)
+        rows, cols = self.pv_shape
+        m = cfg.image_margin_px
+        inside = (depth > 0.1) & (uv[:, 0] >= m) & (uv[:, 0] < cols - m) & (uv[:, 1] >= m) & (uv[:, 1] < rows - m)
+        return ok & inside
+
+    def _detected_near(self, instance: int, xyz: np.ndarray, frame: int) -> bool:
+        frames, world = self.det.get(instance, (np.zeros(0, np.int64), np.zeros((0, 3))))
+        m = frames == frame
+        return bool(m.any() and (np.linalg.norm(world[m] - xyz, axis=1) <= self.cfg.detection_gate_m).any())
+
+    def frame_verdict(self, xyz: np.ndarray, i: int) -> int:
+        """+1 empty, -1 occupied, 0 no evidence, for landmark ``xyz`` in frame ``i``."""
+        rec, cfg = self.rec, self.cfg
+        pose = rec.depth_poses[i]
+        if self.scene is None or not (rec.depth_valid[i] and pose_validity(pose)):
+            return 0
+        to_world = ahat_to_world_matrix(rec.ahat.extrinsics, pose)
+        p_cam = transform_points(xyz[None], invert_rigid(to_world))[0]
+        r_land = float(np.linalg.norm(p_cam))
+        if r_land > cfg.max_range_m or p_cam[2] <= 0:
+            return 0
+        uv, _ = ahat_project(p_cam, rec.ahat.intrinsics)
+        h, w = self.ahat_shape
+        u, v = int(np.floor(uv[0])), int(np.floor(uv[1]))
+        k = cfg.window_px
+        if not (k <= u < w - k and k <= v < h - k):
+            return 0
+        raw = self._depth(i)
+        if raw is None:
+            return 0
+        win = raw[v - k:v + k + 1, u - k:u + k + 1].astype(np.float64).ravel()
+        valid = win > 0
+        if valid.sum() < 3:
+            return 0
+        m = win[valid] * self.m_per_raw
+        dirs_cam = self.dirs[v - k:v + k + 1, u - k:u + k + 1].reshape(-1, 3)[valid]
+        dirs_w = dirs_cam @ to_world[:3, :3]
+        origin = to_world[3, :3]
+        mesh_r = _cast(self.scene, origin, dirs_w)
+        occupied = _circ(m, r_land, self.alias) <= cfg.margin_m
+        empty = (mesh_r > r_land + cfg.margin_m) & (_circ(m, mesh_r, self.alias) <= cfg.agree_m) & ~occupied
+        if occupied.mean() >= 0.5:
+            return -1
+        return 1 if empty.mean() >= cfg.empty_share else 0
+
+    def __call__(self, instance: int, xyz, frame_from: int, frame_to: int) -> int | None:
+        xyz = np.asarray(xyz, dtype=np.float64)
+        frames = np.arange(frame_from, frame_to, max(1, self.cfg.stride))
+        if not len(frames):
+            return None
+        frames = frames[self._in_view(xyz, frames)]
+        run_start, run = None, 0
+        for i in frames:
+            i = int(i)
+            if self._detected_near(instance, xyz, i):
+                run_start, run = None, 0
+                continue
+            verdict = self.frame_verdict(xyz, i)
+            if verdict > 0:
+                run_start = i if run == 0 else run_start
+                run += 1
+                if run >= self.cfg.min_frames:
+                    return run_start
+            elif verdict < 0:
+                run_start, run = None, 0
+        return None
+
+
+def _circ(a: np.ndarray, b, alias: float) -> np.ndarray:
+    """Distance between ranges modulo the alias distance (metres)."""
+    d = np.mod(np.asarray(a) - np.asarray(b), alias)
+    return np.minimum(d, alias - d)
+
+
+def _raycaster(rec):
+    """Open3D RaycastingScene of the recording's HoloLens mesh, or None without a mesh."""
+    mesh = rec.mesh()
+    if mesh is None or len(mesh.triangles) == 0:
+        return None
+    import open3d as o3d
+
+    scene = o3d.t.geometry.RaycastingScene()
+    scene.add_triangles(o3d.t.geometry.TriangleMesh.from_legacy(mesh))
+    return scene
+
+
+def _cast(scene, origin: np.ndarray, dirs: np.ndarray) -> np.ndarray:
+    """Range (metres) to the mesh along unit rays from ``origin``; inf on a miss."""
+    import open3d as o3d
+
+    rays = np.concatenate([np.broadcast_to(origin, dirs.shape), dirs], axis=1).astype(np.float32)
+    hit = scene.cast_rays(o3d.core.Tensor(rays))
+    return hit["t_hit"].numpy().astype(np.float64)
