@@ -3,7 +3,9 @@
     egograph synth OUT --config configs/synth/svoe.yaml --seed 1 --frames 3000
     egograph info REC
     egograph lift REC --detections svoe --out OBS.npz
-    egograph track REC --tracker memory|kf --detections svoe --out RESULTS
+    egograph track REC --tracker graph|graph-causal|memory|kf --detections svoe --out RESULTS
+    egograph regt REC --out DIR
+    egograph smooth REC RESULTS --out RESULTS_SMOOTHED
     egograph eval REC RESULTS [--json OUT]
     egograph compare REC RESULTS_A RESULTS_B ... [--out DIR]
     egograph demo [OUT]
@@ -145,12 +147,14 @@ def cmd_lift(args) -> int:
 
 
 def cmd_track(args) -> int:
-    from egograph.pipeline import evaluate, lift, track, write_results
     from egograph.geometry.observations import Observations
+    from egograph.pipeline import GRAPH_TRACKERS, evaluate, lift, track, track_graph, tracker_names, write_results
 
     cfg = _lifting_config(args)
     if cfg is None:
         return 0
+    if args.tracker not in tracker_names():
+        raise ConfigError(f"--tracker {args.tracker}: unknown; available: {', '.join(tracker_names())}")
     rec = _open(args, cfg)
     con = _console()
     t0 = time.perf_counter()
@@ -160,13 +164,114 @@ def cmd_track(args) -> int:
         obs, report = lift(rec, args.detections, cfg, progress=not args.quiet)
         con.print(report.summary())
     t1 = time.perf_counter()
-    per_frame = track(rec, args.tracker, obs, cfg)
+    intervals_path = None
+    if args.tracker in GRAPH_TRACKERS:
+        result = track_graph(rec, obs, cfg, causal=args.tracker == "graph-causal", progress=not args.quiet)
+        per_frame = result.per_frame
+        intervals_path = args.intervals or _sibling(args.out, ".intervals.json")
+    else:
+        per_frame = track(rec, args.tracker, obs, cfg)
     t2 = time.perf_counter()
     write_results(args.out, rec, per_frame)
     n_pred = sum(len(v) for v in per_frame.values())
     con.print(f"{args.tracker}: {n_pred} predictions over {len(rec)} frames -> {args.out} "
               f"(lift {t1 - t0:.1f} s, track {t2 - t1:.2f} s)")
+    if intervals_path is not None:
+        from egograph.track.intervals import write_intervals_json
+
+        write_intervals_json(intervals_path, result.intervals, result.metadata)
+        _print_intervals(con, result.intervals, rec, result.metadata)
+        con.print(f"intervals -> {intervals_path}")
     if args.eval and rec.annotation_dir is not None:
+        evaluate(rec, args.out).print(con)
+    return 0
+
+
+def _sibling(path: Path, suffix: str) -> Path:
+    path = Path(path)
+    return path.with_name(path.name + suffix)
+
+
+def _print_intervals(con, intervals, rec, metadata: dict) -> None:
+    from rich.table import Table
+
+    t0 = int(rec.timestamps[0])
+    t = Table(title=f"position intervals ({metadata.get('tracker')}): {len(intervals)}")
+    for col in ("instance", "from (s)", "to (s)", "x", "y", "z", "sigma (cm)", "detections", "confidence", "ended by"):
+        t.add_column(col, justify="right")
+    for iv in intervals:
+        t.add_row(str(iv.instance), f"{(iv.t_start - t0) / 1e7:.1f}" + ("*" if iv.backfilled else ""),
+                  f"{(iv.t_end - t0) / 1e7:.1f}", *(f"{v:.2f}" for v in iv.xyz), f"{100 * iv.sigma_m:.1f}",
+                  str(iv.n_observations), f"{iv.confidence:.2f}", iv.ended_by)
+    con.print(t)
+    if metadata.get("backfilled"):
+        con.print("* back-filled to the first frame (offline mode: before its first detection an instance is "
+                  "reported at its first interval)")
+
+
+def cmd_regt(args) -> int:
+    from egograph.geometry.lift import lift_recording
+    from egograph.io.annotations import load_annotations, write_centers
+    from egograph.io.atomic import atomic_write_text
+    from egograph.io.errors import InputError
+    from egograph.pipeline import n_instances
+    from egograph.track.regt import as_center_annotations, audit_text, box_detections, reestimate_centres
+
+    cfg = _lifting_config(args)
+    if cfg is None:
+        return 0
+    regt = cfg.regt
+    rec = _open(args, cfg)
+    if rec.annotation_dir is None:
+        raise InputError(rec.seq_dir, "no annotations found (motion_state_annot.txt, 2d_bbox_annot/); pass --annotations DIR")
+    ann = load_annotations(rec.annotation_dir, box_format=cfg.io.box_format)
+    obs, report = lift_recording(rec, box_detections(ann), cfg.lift, progress=not args.quiet,
+                                 n_instances=n_instances(rec))
+    est = reestimate_centres(ann, obs, cfg.graph, regt)
+    out = Path(args.out)
+    out.mkdir(parents=True, exist_ok=True)
+    write_centers(out / "3d_center_annot.txt", as_center_annotations(est))
+    from dataclasses import asdict
+
+    atomic_write_text(out / "regt.json", json.dumps({"audit_m": regt.audit_m, "audit_sigma": regt.audit_sigma,
+                                                      "intervals": [asdict(e) for e in est]}, indent=1) + "\n")
+    text = audit_text(est, regt)
+    atomic_write_text(out / "audit.md", text)
+    con = _console()
+    con.print(report.summary())
+    print(text)
+    con.print(f"re-estimated {sum(e.xyz is not None for e in est)} of {len(est)} intervals -> {out}/3d_center_annot.txt, "
+              f"regt.json (covariances), audit.md")
+    return 0
+
+
+def cmd_smooth(args) -> int:
+    from egograph.io.detections import read_results_dir
+    from egograph.pipeline import write_results
+    from egograph.track.graph import graph_tracker
+    from egograph.track.intervals import write_intervals_json
+    from egograph.track.smooth import predictions_to_observations
+
+    cfg = _pipeline_config(args)
+    if args.show_config:
+        _show_config(cfg.graph)
+        return 0
+    rec = _open(args, cfg)
+    per_frame = read_results_dir(args.results, rec.timestamps)
+    obs = predictions_to_observations(per_frame, rec.timestamps, rec.pv_poses, rec.pv_valid)
+    cfg.graph.score_threshold = 0.0  # the other tracker already thresholded its detections
+    cfg.graph.alias_rounds = 0
+    result = graph_tracker(obs, rec.timestamps, cfg.graph, causal=args.causal, progress=not args.quiet)
+    result.metadata["smoothed"] = str(args.results)
+    write_results(args.out, rec, result.per_frame)
+    ipath = args.intervals or _sibling(args.out, ".intervals.json")
+    write_intervals_json(ipath, result.intervals, result.metadata)
+    con = _console()
+    _print_intervals(con, result.intervals, rec, result.metadata)
+    con.print(f"smoothed {len(obs)} predictions of {args.results} -> {args.out}, intervals -> {ipath}")
+    if args.eval and rec.annotation_dir is not None:
+        from egograph.pipeline import evaluate
+
         evaluate(rec, args.out).print(con)
     return 0
 
@@ -300,7 +405,8 @@ def build_parser() -> argparse.ArgumentParser:
 
     s = sub.add_parser("track", help="track instances; writes per-frame results (instance x y z score)")
     _add_rec_args(s)
-    s.add_argument("--tracker", required=True, help="memory | kf")
+    s.add_argument("--tracker", required=True, help="graph | graph-causal | memory | kf")
+    s.add_argument("--intervals", type=Path, help="graph trackers: intervals JSON (default: RESULTS.intervals.json)")
     s.add_argument("--detections", default="svoe", help="folder of per-frame detection files, or a set name (svoe, mvpe)")
     s.add_argument("--observations", type=Path, help="use lifted observations (.npz from `egograph lift`) instead")
     s.add_argument("--out", required=True, type=Path, help="results folder (one file per PV frame)")
@@ -309,6 +415,26 @@ def build_parser() -> argparse.ArgumentParser:
     s.add_argument("--quiet", action="store_true")
     _add_config_args(s, DEFAULT_CONFIG)
     s.set_defaults(func=cmd_track)
+
+    s = sub.add_parser("regt", help="re-estimate the annotated 3D centres from the 2D box annotations; audit them")
+    _add_rec_args(s)
+    s.add_argument("--out", required=True, type=Path,
+                   help="folder for 3d_center_annot.txt (re-estimated), regt.json (covariances) and audit.md")
+    s.add_argument("--lift", choices=["reference", "robust"])
+    s.add_argument("--quiet", action="store_true")
+    _add_config_args(s, DEFAULT_CONFIG)
+    s.set_defaults(func=cmd_regt)
+
+    s = sub.add_parser("smooth", help="turn another tracker's per-frame results into intervals with the graph")
+    _add_rec_args(s)
+    s.add_argument("results", type=Path, help="results folder in the reference format (instance x y z score)")
+    s.add_argument("--out", required=True, type=Path, help="smoothed results folder")
+    s.add_argument("--intervals", type=Path, help="intervals JSON (default: OUT.intervals.json)")
+    s.add_argument("--causal", action="store_true", help="causal (iSAM2) instead of offline")
+    s.add_argument("--eval", action="store_true")
+    s.add_argument("--quiet", action="store_true")
+    _add_config_args(s, DEFAULT_CONFIG)
+    s.set_defaults(func=cmd_smooth)
 
     s = sub.add_parser("eval", help="IT3DEgo metrics of a results folder")
     _add_rec_args(s)

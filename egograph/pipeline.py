@@ -42,12 +42,38 @@ def lift(rec: Recording, spec: str | Path, cfg: EgographConfig, progress: bool =
     return lift_recording(rec, dets, cfg.lift, progress=progress, n_instances=n_instances(rec))
 
 
+GRAPH_TRACKERS = ("graph", "graph-causal")
+
+
+def tracker_names() -> list[str]:
+    from egograph.track.baselines import TRACKERS
+
+    return sorted([*TRACKERS, *GRAPH_TRACKERS])
+
+
+def track_graph(rec: Recording, obs, cfg: EgographConfig, causal: bool = False, progress: bool = False):
+    """The factor-graph tracker (with negative evidence from the recording's depth when
+    ``cfg.graph.negative_evidence``) -> :class:`~egograph.track.graph.GraphResult`."""
+    from egograph.track.graph import graph_tracker
+    from egograph.track.negative import NegativeEvidence
+
+    negative = None
+    if cfg.graph.negative_evidence:
+        negative = NegativeEvidence(rec, obs, cfg.graph.negative, cfg.graph.score_threshold)
+    result = graph_tracker(obs, rec.timestamps, cfg.graph, causal=causal, negative=negative, progress=progress)
+    if negative is not None:
+        result.metadata["negative_depth_frames_read"] = negative.n_frames_read
+    return result
+
+
 def track(rec: Recording, tracker: str, obs, cfg: EgographConfig) -> dict:
     """Run a named tracker on observations -> per-frame predictions {ts: [Prediction]}."""
     from egograph.track.baselines import TRACKERS
 
+    if tracker in GRAPH_TRACKERS:
+        return track_graph(rec, obs, cfg, causal=tracker == "graph-causal").per_frame
     if tracker not in TRACKERS:
-        raise ValueError(f"unknown tracker {tracker!r}; available: {', '.join(sorted(TRACKERS))}")
+        raise ValueError(f"unknown tracker {tracker!r}; available: {', '.join(tracker_names())}")
     return TRACKERS[tracker](obs, rec.timestamps, cfg.track)
 
 

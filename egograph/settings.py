@@ -1,7 +1,8 @@
 """The pipeline's typed configuration (``configs/default.yaml``), one section per stage.
 
 Each stage declares its own knobs where it is implemented (``LiftConfig`` in
-``egograph/geometry/lift.py``, ``BaselineConfig`` in ``egograph/track/baselines.py``);
+``egograph/geometry/lift.py``, ``BaselineConfig`` in ``egograph/track/baselines.py``, ``GraphConfig`` in
+``egograph/track/graph.py``);
 this module only assembles them. ``egograph <cmd> --show-config`` lists every knob.
 """
 
@@ -12,6 +13,8 @@ from dataclasses import dataclass
 from egograph.config import knob, section
 from egograph.geometry.lift import LiftConfig
 from egograph.track.baselines import BaselineConfig
+from egograph.track.graph import GraphConfig
+from egograph.track.regt import RegtConfig
 
 
 @dataclass
@@ -25,4 +28,6 @@ class IoConfig:
 class EgographConfig:
     io: IoConfig = section(IoConfig, "reading recordings")
     lift: LiftConfig = section(LiftConfig, "2D detections -> 3D observations")
-    track: BaselineConfig = section(BaselineConfig, "trackers")
+    track: BaselineConfig = section(BaselineConfig, "the paper's baseline trackers (memory, kf)")
+    graph: GraphConfig = section(GraphConfig, "the factor-graph tracker (graph, graph-causal), regt and smooth")
+    regt: RegtConfig = section(RegtConfig, "ground-truth re-estimation audit")
