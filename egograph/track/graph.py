@@ -33,6 +33,7 @@ Per instance (camera poses fixed, so instances are independent graphs):
 
 from __future__ import annotations
 
+import dataclasses
 import math
 from dataclasses import dataclass, field
 from typing import Callable, Sequence
@@ -48,7 +49,7 @@ from egograph.track.detection_factor import (
 from egograph.track.intervals import PositionInterval, per_frame_predictions
 from egograph.track.negative import NegativeConfig
 from egograph.track.switchable import (
-    dcs_between, dcs_switch_value, switch_clipped, switch_prior, switchable_between,
+    dcs_between, dcs_phi, dcs_switch_value, switch_clipped, switch_prior, switchable_between,
 )
 
 TICKS_PER_SECOND = 1e7
@@ -122,6 +123,7 @@ class InstanceSolution:
     world: np.ndarray | None = None   # per observation, after alias re-choice, metres
     cov: np.ndarray | None = None     # per observation detection covariance, m^2
     frames: np.ndarray | None = None  # per observation PV frame index
+    pieces: list[PositionInterval] | None = None  # causal: every report with its own position
 
 
 @dataclass
@@ -166,7 +168,7 @@ def add_break_factors(graph: gtsam.NonlinearFactorGraph, values: gtsam.Values, k
         graph.add(switch_prior(S(k), cfg.switch_sigma))
         values.insert(S(k), np.array([1.0]))
     elif cfg.switches == "dcs":
-        graph.add(dcs_between(L(k - 1), L(k), cfg.still_sigma_m, 1.0 / cfg.switch_sigma**2))
+        graph.add(dcs_between(L(k - 1), L(k), cfg.still_sigma_m, dcs_phi(cfg.switch_sigma)))
     else:
         raise ValueError(f"unknown switches {cfg.switches!r}: 'switchable' or 'dcs'")
 
@@ -196,7 +198,7 @@ def switch_values(result: gtsam.Values, landmarks: np.ndarray, cfg: GraphConfig)
     n = len(landmarks)
     if cfg.switches == "switchable":
         return np.array([switch_clipped(result, S(k)) for k in range(1, n)])
-    phi = 1.0 / cfg.switch_sigma**2
+    phi = dcs_phi(cfg.switch_sigma)
     return np.array([dcs_switch_value(landmarks[k - 1], landmarks[k], cfg.still_sigma_m, phi) for k in range(1, n)])
 
 
@@ -448,88 +450,123 @@ def exclude_confusions(solutions: list[InstanceSolution], t_frames: np.ndarray, 
 
 def track_instance_causal(instance: int, obs: Observations, t_frames: np.ndarray, cfg: GraphConfig,
                           negative: NegativeFn | None = None) -> InstanceSolution:
-    """Causal solve: iSAM2 grows the graph chunk by chunk; each frame reports what the
-    observations up to the end of the previous chunk support (no look-ahead).
+    """Causal solve: iSAM2 grows the graph one observed frame at a time; a frame's report
+    uses only the observations of earlier frames (one frame of latency, no look-ahead).
 
-    The state after chunk k: the trailing segment (chunks back to the last switch that is
-    off) is stationary when its robust centre explains enough of its detections; then the
-    instance is reported there until the next chunk changes that. A trailing segment that is
-    not (yet) stationary means the object is moving, or unconfirmed: nothing is reported.
+    After each update the *trailing segment* (chunks back to the last switch that is off)
+    is tested like an offline segment, around iSAM2's estimate of the newest landmark:
+    enough inliers, a large enough inlier share, not moving with the head. If it passes,
+    the instance is reported there from the next frame on; otherwise (moving, or a new
+    place not yet confirmed) nothing is reported. Reports of one stand form one interval
+    in the JSON (its last estimate); the per-frame results keep every report's position.
     """
     if len(obs) == 0:
         return InstanceSolution(instance, [])
     t_s = (obs.timestamps - t_frames[0]) / TICKS_PER_SECOND
     chunk = chunk_index(t_s, cfg.chunk_s)
-    n = int(chunk.max()) + 1
-    world = obs.world.copy()
+    world = obs.world
     cov = detection_covariances(world, obs.camera, cfg.noise)
-    init = chunk_medians(world, chunk, n)
+    info = np.linalg.inv(cov)
     frames = obs.frame.astype(np.int64)
     params = gtsam.ISAM2Params()
     params.setRelinearizeThreshold(0.01)
     isam = gtsam.ISAM2(params)
-    bounds = np.searchsorted(chunk, np.arange(n + 1))  # chunk is sorted (time-sorted rows)
-    seg_start = 0  # first chunk of the trailing segment
-    state: list[tuple[int, Segment | None]] = []  # (first frame the state applies to, stationary segment)
-    switches = []
-    for k in range(n):
+    cuts = np.flatnonzero(np.diff(frames)) + 1
+    groups = np.split(np.arange(len(frames)), cuts)
+    seg_first_row = 0
+    reports: list[tuple[int, Segment | None, int]] = []  # (first frame it applies to, stand, segment start row)
+    switches: list[float] = []
+    seen_chunks = -1
+    for rows in groups:
+        k = int(chunk[rows[0]])
         graph = gtsam.NonlinearFactorGraph()
         values = gtsam.Values()
-        values.insert(L(k), gtsam.Point3(*init[k]))
-        if k:
-            add_break_factors(graph, values, k, cfg)
-        rows = np.arange(bounds[k], bounds[k + 1])
+        if k > seen_chunks:
+            values.insert(L(k), gtsam.Point3(*np.median(world[rows], axis=0)))
+            if k:
+                add_break_factors(graph, values, k, cfg)
+            seen_chunks = k
         add_detection_factors(graph, np.full(len(rows), L(k)), world[rows], cov[rows], cfg.noise)
         isam.update(graph, values)
-        isam.update()
         here = np.asarray(isam.calculateEstimatePoint3(L(k)), dtype=float)
         if k:
             if cfg.switches == "switchable":
                 sw = min(1.0, max(0.0, float(isam.calculateEstimateVector(S(k))[0])))
             else:
                 sw = dcs_switch_value(np.asarray(isam.calculateEstimatePoint3(L(k - 1))), here,
-                                      cfg.still_sigma_m, 1.0 / cfg.switch_sigma**2)
-            switches.append(sw)
+                                      cfg.still_sigma_m, dcs_phi(cfg.switch_sigma))
             if sw < cfg.break_below:
-                seg_start = k
-        seg_rows = np.arange(bounds[seg_start], bounds[k + 1])
-        seg = make_segment(seg_rows, world, cov, cfg, start=here, camera=obs.camera, range_m=obs.range_m)
-        # The state holds from the frame after this chunk's last detection.
-        state.append((int(frames[rows[-1]]) + 1, seg if seg.stationary else None))
-    return InstanceSolution(instance, _causal_intervals(instance, state, frames, t_frames, cfg, negative),
-                            np.array(switches), len(obs), n)
+                seg_first_row = max(seg_first_row, int(np.searchsorted(chunk, k)))
+            if rows[0] == np.searchsorted(chunk, k):
+                switches.append(sw)
+        seg_rows = np.arange(seg_first_row, rows[-1] + 1)
+        seg = _stand_around(here, seg_rows, world, cov, info, obs, cfg)
+        reports.append((int(frames[rows[-1]]) + 1, seg if seg.stationary else None, seg_first_row))
+    pieces = _causal_pieces(instance, reports, frames, t_frames, cfg, negative)
+    sol = InstanceSolution(instance, _join_pieces(pieces), np.array(switches), len(obs), int(chunk.max()) + 1)
+    sol.pieces = pieces
+    return sol
 
 
-def _causal_intervals(instance: int, state: list, frames: np.ndarray, t_frames: np.ndarray, cfg: GraphConfig,
-                      negative: NegativeFn | None) -> list[PositionInterval]:
-    """Piecewise-constant reports from the causal states: one interval per state, covering the
-    frames from the state's first frame to the frame before the next state."""
+def _stand_around(xyz: np.ndarray, rows: np.ndarray, world: np.ndarray, cov: np.ndarray, info: np.ndarray,
+                  obs: Observations, cfg: GraphConfig) -> Segment:
+    """The offline stand test around a given centre without a robust re-solve (cheap enough per
+    frame): the centre becomes the information-weighted mean of the segment's inliers around
+    ``xyz`` (iSAM2's newest landmark), its covariance the inverse of their summed information."""
+    inl = mahalanobis2(world[rows], xyz, cov[rows]) <= cfg.inlier_chi2
+    c = cov[rows[0]]
+    for _ in range(2):
+        if not inl.any():
+            break
+        c = np.linalg.inv(info[rows[inl]].sum(axis=0))
+        xyz = c @ np.einsum("mij,mj->i", info[rows[inl]], world[rows[inl]])
+        inl = mahalanobis2(world[rows], xyz, cov[rows]) <= cfg.inlier_chi2
+    seg = Segment(rows, xyz, c, inl)
+    in_hand = moves_with_camera(world[rows], obs.camera[rows], obs.range_m[rows], cfg)
+    seg.stationary = (seg.n_inliers >= cfg.min_observations and seg.n_inliers >= cfg.min_inlier_share * len(rows)
+                      and not in_hand)
+    return seg
+
+
+def _causal_pieces(instance: int, reports: list, frames: np.ndarray, t_frames: np.ndarray, cfg: GraphConfig,
+                   negative: NegativeFn | None) -> list[PositionInterval]:
+    """One piece per report: its stand over the frames from the report's first frame to the
+    frame before the next report (cut short by negative evidence seen up to that frame)."""
     out: list[PositionInterval] = []
     n_frames = len(t_frames)
-    for j, (f0, seg) in enumerate(state):
+    for j, (f0, seg, seg_start) in enumerate(reports):
         if seg is None or f0 >= n_frames:
             continue
-        f1 = state[j + 1][0] - 1 if j + 1 < len(state) else n_frames - 1
-        f1 = min(f1, n_frames - 1)
-        if f1 < f0:
-            continue
-        ended_by = "detection" if j + 1 < len(state) else "end"
+        f1 = min(reports[j + 1][0] - 1 if j + 1 < len(reports) else n_frames - 1, n_frames - 1)
+        ended_by = "detection" if j + 1 < len(reports) else "end"
+        inl_frames = frames[seg.rows[seg.inliers]]
         if negative is not None:
-            last = int(frames[seg.rows[seg.inliers]].max())
-            gone = negative(instance, seg.xyz, max(f0, last + 1), f1 + 1)
+            gone = negative(instance, seg.xyz, max(f0, int(inl_frames.max()) + 1), f1 + 1)
             if gone is not None:
                 f1, ended_by = gone - 1, "negative"
-            if f1 < f0:
-                continue
-        inl_frames = frames[seg.rows[seg.inliers]]
-        cov = seg.covariance + cfg.covariance_floor_m**2 * np.eye(3)
+        if f1 < f0:
+            continue
+        c = seg.covariance + cfg.covariance_floor_m**2 * np.eye(3)
         out.append(PositionInterval(
             instance=int(instance), t_start=int(t_frames[f0]), t_end=int(t_frames[f1]),
-            xyz=tuple(float(v) for v in seg.xyz), covariance=cov.tolist(), n_observations=seg.n_inliers,
+            xyz=tuple(float(v) for v in seg.xyz), covariance=c.tolist(), n_observations=seg.n_inliers,
             confidence=_confidence(seg, len(seg.rows), cfg), first_seen=int(t_frames[inl_frames.min()]),
             last_seen=int(t_frames[inl_frames.max()]), ended_by=ended_by,
-            extra={"start_frame": f0, "end_frame": f1},
+            extra={"start_frame": f0, "end_frame": f1, "segment_start_row": seg_start},
         ))
+    return out
+
+
+def _join_pieces(pieces: list[PositionInterval]) -> list[PositionInterval]:
+    """Consecutive pieces of one stand (same segment start, no gap) -> one interval at the last estimate."""
+    out: list[PositionInterval] = []
+    for p in pieces:
+        last = out[-1] if out else None
+        if (last is not None and last.extra["segment_start_row"] == p.extra["segment_start_row"]
+                and p.extra["start_frame"] == last.extra["end_frame"] + 1 and last.ended_by != "negative"):
+            out[-1] = dataclasses.replace(p, t_start=last.t_start, extra={**p.extra, "start_frame": last.extra["start_frame"]})
+        else:
+            out.append(p)
     return out
 
 
@@ -570,7 +607,8 @@ def graph_tracker(obs: Observations, timestamps: Sequence[int], cfg: GraphConfig
     if not causal and cfg.exclusion_radius_m > 0:
         n_excluded = exclude_confusions(solutions, t_frames, cfg, negative)
     intervals = sorted((iv for s in solutions for iv in s.intervals), key=lambda iv: (iv.instance, iv.t_start))
-    per_frame = per_frame_predictions(intervals, t_frames)
+    pieces = [p for s in solutions for p in (s.pieces if s.pieces is not None else s.intervals)]
+    per_frame = per_frame_predictions(pieces, t_frames)
     metadata = {
         "tracker": "graph-causal" if causal else "graph",
         "backfilled": (not causal),

@@ -10,10 +10,13 @@ For a landmark ``xyz`` (world, metres) and a PV frame, the test is:
    pixel ray, gives the range ``M`` of the surface behind. With ``R`` the landmark's range
    and ranges compared modulo the alias distance (AHAT wraps):
 
-   * *empty* pixel: the mesh surface lies clearly behind the landmark (``M > R + margin``),
-     the reading agrees with the mesh, and disagrees with the landmark;
-   * *occupied* pixel: the reading agrees with the landmark's range;
-   * anything else (an occluder in front, no mesh) is no evidence either way;
+   * *empty* pixel: the surface seen lies clearly behind the landmark centre
+     (``m - R >= margin``, modulo the alias), and so does the mesh (``M > R + margin``,
+     which rules out an occluder half an alias distance in front): the ray passed through
+     the place where the object would be;
+   * *occupied* pixel: the surface seen lies between ``object_radius_m`` in front of the
+     centre and ``agree_m`` behind it: something stands there;
+   * anything else (an occluder in front) is no evidence either way;
 
 3. a frame says *empty* when most valid window pixels are empty, *occupied* when at least
    half are occupied. The object is gone from the first of ``negative_min_frames``
@@ -40,9 +43,11 @@ from egograph.geometry.observations import Observations
 
 @dataclass
 class NegativeConfig:
-    margin_m: float = knob(0.15, "a pixel is empty when the scene surface is this much behind the landmark and the "
-                                 "reading disagrees with the landmark's range by as much, metres")
-    agree_m: float = knob(0.05, "a reading agrees with a range within this (modulo the alias distance), metres")
+    margin_m: float = knob(0.08, "a pixel is empty when its reading, and the mesh, lie at least this far behind "
+                                 "the landmark centre, metres")
+    agree_m: float = knob(0.03, "a reading up to this far behind the landmark centre may still be the object, metres")
+    object_radius_m: float = knob(0.15, "a reading up to this far in front of the landmark centre is the object "
+                                        "(occupied), metres")
     max_range_m: float = knob(2.5, "only landmarks within this range of the depth camera are tested, metres")
     window_px: int = knob(2, "half side of the AHAT pixel window around the landmark's projection")
     image_margin_px: float = knob(40.0, "the landmark must project this far inside the PV image, pixels")
@@ -134,8 +139,9 @@ class NegativeEvidence:
         dirs_w = dirs_cam @ to_world[:3, :3]
         origin = to_world[3, :3]
         mesh_r = _cast(self.scene, origin, dirs_w)
-        occupied = _circ(m, r_land, self.alias) <= cfg.margin_m
-        empty = (mesh_r > r_land + cfg.margin_m) & (_circ(m, mesh_r, self.alias) <= cfg.agree_m) & ~occupied
+        d = _signed(m, r_land, self.alias)
+        occupied = (d >= -cfg.object_radius_m) & (d <= cfg.agree_m)
+        empty = (d >= cfg.margin_m) & (mesh_r > r_land + cfg.margin_m)
         if occupied.mean() >= 0.5:
             return -1
         return 1 if empty.mean() >= cfg.empty_share else 0
@@ -163,10 +169,9 @@ class NegativeEvidence:
         return None
 
 
-def _circ(a: np.ndarray, b, alias: float) -> np.ndarray:
-    """Distance between ranges modulo the alias distance (metres)."""
-    d = np.mod(np.asarray(a) - np.asarray(b), alias)
-    return np.minimum(d, alias - d)
+def _signed(a: np.ndarray, b: float, alias: float) -> np.ndarray:
+    """``a - b`` modulo the alias distance, in ``[-alias/2, alias/2)`` (metres)."""
+    return np.mod(np.asarray(a) - b + alias / 2, alias) - alias / 2
 
 
 def _raycaster(rec):

@@ -17,8 +17,9 @@ Dynamic covariance scaling (DCS, Agarwal et al. ICRA 2013) is the closed form of
 idea: the switch is eliminated analytically, ``s = min(1, 2 phi / (phi + d^2))``, and
 GTSAM applies it as an m-estimator inside a plain ``BetweenFactorPoint3`` (all C++, no
 Python callback). :func:`dcs_between` builds it; :func:`dcs_switch_value` recovers the
-implied switch for reporting. ``phi = 1 / sigma_s^2`` makes the two agree on where a
-break is (see the tests).
+implied switch for reporting. DCS's switch falls below 0.5 where ``d^2 > 3 phi``, so
+``phi = 1 / (3 sigma_s^2)`` (:func:`dcs_phi`) puts its breaks exactly where the switchable
+factor puts them (see the tests).
 
 The switch factor is a ``gtsam.CustomFactor`` with analytic Jacobians: there are few of
 them (one per chunk boundary), while the many detection factors stay C++ factors.
@@ -73,6 +74,11 @@ def dcs_between(key_a: int, key_b: int, still_sigma_m: float, phi: float) -> gts
     base = gtsam.noiseModel.Isotropic.Sigma(3, still_sigma_m)
     robust = gtsam.noiseModel.Robust.Create(gtsam.noiseModel.mEstimator.DCS.Create(phi), base)
     return gtsam.BetweenFactorPoint3(key_a, key_b, gtsam.Point3(0, 0, 0), robust)
+
+
+def dcs_phi(switch_sigma: float) -> float:
+    """The DCS ``phi`` that breaks at the same whitened gap as a switch prior of ``switch_sigma``."""
+    return 1.0 / (3.0 * switch_sigma**2)
 
 
 def dcs_switch_value(a: np.ndarray, b: np.ndarray, still_sigma_m: float, phi: float) -> float:
