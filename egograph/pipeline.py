@@ -52,15 +52,22 @@ def tracker_names() -> list[str]:
 
 
 def track_graph(rec: Recording, obs, cfg: EgographConfig, causal: bool = False, progress: bool = False):
-    """The factor-graph tracker (with negative evidence from the recording's depth when
-    ``cfg.graph.negative_evidence``) -> :class:`~egograph.track.graph.GraphResult`."""
+    """The factor-graph tracker -> :class:`~egograph.track.graph.GraphResult`, with negative
+    evidence from the recording's depth (``cfg.graph.negative_evidence``) and the support test
+    against its mesh (``cfg.graph.max_support_gap_m``)."""
     from egograph.track.graph import graph_tracker
     from egograph.track.negative import NegativeEvidence
 
-    negative = None
-    if cfg.graph.negative_evidence:
-        negative = NegativeEvidence(rec, obs, cfg.graph.negative, cfg.graph.score_threshold)
-    result = graph_tracker(obs, rec.timestamps, cfg.graph, causal=causal, negative=negative, progress=progress)
+    scene = None
+    if cfg.graph.negative_evidence or cfg.graph.max_support_gap_m > 0:
+        scene = NegativeEvidence(rec, obs, cfg.graph.negative, cfg.graph.score_threshold)
+    negative = scene if cfg.graph.negative_evidence else None
+    support = None
+    if scene is not None and scene.scene is not None and cfg.graph.max_support_gap_m > 0:
+        gap = cfg.graph.max_support_gap_m
+        support = lambda xyz: scene.supported(xyz, gap)  # noqa: E731
+    result = graph_tracker(obs, rec.timestamps, cfg.graph, causal=causal, negative=negative, support=support,
+                           progress=progress)
     if negative is not None:
         result.metadata["negative_depth_frames_read"] = negative.n_frames_read
     return result

@@ -49,3 +49,44 @@ def test_bad_input_exits_2_naming_the_file(tmp_path, capsys):
     assert main(["synth", str(tmp_path / "o"), "--config", str(bad), "--quiet"]) == 2
     assert "bad.yaml: not valid YAML" in capsys.readouterr().err
     assert not (tmp_path / "o").exists()
+
+
+def test_graph_track_regt_smooth(tiny_rec, tmp_path, capsys):
+    from egograph.eval.loader import load_gt_intervals
+    from egograph.track.intervals import read_intervals_json
+
+    rec = Recording.open(tiny_rec)
+    assert main(["track", str(tiny_rec), "--tracker", "graph", "--detections", "mvpe", "--quiet",
+                 "--out", str(tmp_path / "graph"), "--eval"]) == 0
+    assert len(list((tmp_path / "graph").glob("*.txt"))) == len(rec)
+    intervals, meta = read_intervals_json(tmp_path / "graph.intervals.json")
+    assert meta["tracker"] == "graph" and meta["backfilled"] is True and intervals
+    out = capsys.readouterr().out
+    assert "position intervals" in out and "back-filled" in out
+    # confident intervals are true stands: within 0.25 m of a GT interval of their instance that they overlap
+    gt = load_gt_intervals(rec.annotation_dir / "3d_center_annot.txt")
+    true = [any(g.instance == iv.instance and g.t_start <= iv.t_end and g.t_end >= iv.t_start
+                and sum((a - b) ** 2 for a, b in zip(g.xyz, iv.xyz)) ** 0.5 < 0.25 for g in gt) for iv in intervals]
+    assert sum(true) >= 2
+    assert all(ok for ok, iv in zip(true, intervals) if iv.confidence >= 0.8)
+
+    assert main(["track", str(tiny_rec), "--tracker", "graph-causal", "--detections", "mvpe", "--quiet",
+                 "--out", str(tmp_path / "causal")]) == 0
+    assert read_intervals_json(tmp_path / "causal.intervals.json")[1]["backfilled"] is False
+
+    assert main(["regt", str(tiny_rec), "--out", str(tmp_path / "regt"), "--quiet"]) == 0
+    for name in ("3d_center_annot.txt", "regt.json", "audit.md"):
+        assert (tmp_path / "regt" / name).is_file()
+    assert "annotated centres flagged" in (tmp_path / "regt" / "audit.md").read_text()
+
+    assert main(["track", str(tiny_rec), "--tracker", "kf", "--detections", "mvpe", "--quiet",
+                 "--out", str(tmp_path / "kf")]) == 0
+    assert main(["smooth", str(tiny_rec), str(tmp_path / "kf"), "--out", str(tmp_path / "kf_graph"),
+                 "--quiet"]) == 0
+    assert len(list((tmp_path / "kf_graph").glob("*.txt"))) == len(rec)
+    assert read_intervals_json(tmp_path / "kf_graph.intervals.json")[1]["smoothed"].endswith("kf")
+
+
+def test_unknown_tracker_is_refused(tiny_rec, tmp_path, capsys):
+    assert main(["track", str(tiny_rec), "--tracker", "bogus", "--out", str(tmp_path / "x"), "--quiet"]) == 2
+    assert "bogus" in capsys.readouterr().err and not (tmp_path / "x").exists()

@@ -58,6 +58,9 @@ NegativeFn = Callable[[int, np.ndarray, int, int], "int | None"]
 """``(instance, xyz, frame_from, frame_to) -> first frame index in [from, to) whose depth
 shows the place empty, or None`` (:class:`egograph.track.negative.NegativeEvidence`)."""
 
+SupportFn = Callable[[np.ndarray], bool]
+"""``xyz -> whether the scene can hold an object resting there`` (a surface close below)."""
+
 
 @dataclass
 class GraphConfig:
@@ -90,6 +93,9 @@ class GraphConfig:
     confidence_scale: float = knob(5.0, "inlier count at which confidence reaches 63 % of the inlier share")
     alias_rounds: int = knob(1, "re-solves after re-choosing each detection's AHAT alias candidate")
     max_iterations: int = knob(50, "Levenberg-Marquardt iteration limit")
+    max_support_gap_m: float = knob(0.35, "a stand seen only from within carry_range_m needs the scene mesh at most "
+                                          "this far below its centre (an object held still in hand is in mid-air), "
+                                          "metres; 0 disables; needs the recording's mesh")
     negative_evidence: bool = knob(True, "end intervals where depth shows the place empty, and keep apart stands "
                                          "at one place with such evidence between them (reads depth frames)")
     noise: DetectionNoiseConfig = section(DetectionNoiseConfig, "detection factor noise and robust kernel")
@@ -257,6 +263,15 @@ def moves_with_camera(world: np.ndarray, camera: np.ndarray, range_m: np.ndarray
     return bool(spread_world > cfg.carry_spread_m and spread_world > spread_rel)
 
 
+def held_in_mid_air(seg: Segment, range_m: np.ndarray, cfg: GraphConfig, support: SupportFn | None) -> bool:
+    """A hand holding an object still looks like a stand in the world; but it is seen only from
+    close by (median range <= ``carry_range_m``) and nothing in the scene mesh holds it up. Both
+    must hold: HoloLens meshes have holes, and objects are looked at closely before a pick-up."""
+    if support is None or np.median(range_m[seg.rows]) > cfg.carry_range_m:
+        return False
+    return not support(seg.xyz)
+
+
 def classify_moving(segs: list[Segment], range_m: np.ndarray, cfg: GraphConfig) -> list[Segment]:
     """Mark carries among the non-stationary segments and drop the rest (scattered false
     matches: they neither hold a place nor show the object moving)."""
@@ -388,7 +403,7 @@ def intervals_from_segments(instance: int, segs: list[Segment], t_frames: np.nda
 
 
 def track_instance_offline(instance: int, obs: Observations, t_frames: np.ndarray, cfg: GraphConfig,
-                           negative: NegativeFn | None = None) -> InstanceSolution:
+                           negative: NegativeFn | None = None, support: SupportFn | None = None) -> InstanceSolution:
     """Offline solve of one instance's observations (already filtered and time-sorted):
     segments (``solution.segments``) and the intervals placed from them."""
     if len(obs) == 0:
@@ -402,6 +417,8 @@ def track_instance_offline(instance: int, obs: Observations, t_frames: np.ndarra
         cov = detection_covariances(world, obs.camera, cfg.noise)
     segs = [make_segment(rows, world, cov, cfg, camera=obs.camera, range_m=obs.range_m)
             for rows in segments_from_switches(chunk, switches, cfg.break_below)]
+    for seg in segs:
+        seg.stationary = seg.stationary and not held_in_mid_air(seg, obs.range_m, cfg, support)
     frames = obs.frame.astype(np.int64)
     segs = merge_segments(classify_moving(segs, obs.range_m, cfg), world, cov, cfg, instance, frames, negative)
     sol = InstanceSolution(instance, [], switches, len(obs), int(chunk.max()) + 1)
@@ -449,7 +466,7 @@ def exclude_confusions(solutions: list[InstanceSolution], t_frames: np.ndarray, 
 
 
 def track_instance_causal(instance: int, obs: Observations, t_frames: np.ndarray, cfg: GraphConfig,
-                          negative: NegativeFn | None = None) -> InstanceSolution:
+                          negative: NegativeFn | None = None, support: SupportFn | None = None) -> InstanceSolution:
     """Causal solve: iSAM2 grows the graph one observed frame at a time; a frame's report
     uses only the observations of earlier frames (one frame of latency, no look-ahead).
 
@@ -501,6 +518,7 @@ def track_instance_causal(instance: int, obs: Observations, t_frames: np.ndarray
                 switches.append(sw)
         seg_rows = np.arange(seg_first_row, rows[-1] + 1)
         seg = _stand_around(here, seg_rows, world, cov, info, obs, cfg)
+        seg.stationary = seg.stationary and not held_in_mid_air(seg, obs.range_m, cfg, support)
         reports.append((int(frames[rows[-1]]) + 1, seg if seg.stationary else None, seg_first_row))
     pieces = _causal_pieces(instance, reports, frames, t_frames, cfg, negative)
     sol = InstanceSolution(instance, _join_pieces(pieces), np.array(switches), len(obs), int(chunk.max()) + 1)
@@ -582,13 +600,15 @@ def select_instance_rows(obs: Observations, instance: int, threshold: float) -> 
 
 
 def graph_tracker(obs: Observations, timestamps: Sequence[int], cfg: GraphConfig, *, causal: bool = False,
-                  negative: NegativeFn | None = None, instances: Sequence[int] | None = None,
+                  negative: NegativeFn | None = None, support: SupportFn | None = None,
+                  instances: Sequence[int] | None = None,
                   progress: bool = False) -> GraphResult:
     """Run the graph tracker over a recording's observations.
 
     ``timestamps``: the PV frames (ticks); observations must sit on them (``obs.frame`` is
     the index into the sorted timestamps). ``negative``: optional negative-evidence test
-    (:func:`egograph.track.negative.negative_evidence_fn`). Returns intervals, the per-frame
+    (:class:`egograph.track.negative.NegativeEvidence`); ``support``: optional test that a
+    stand rests on the scene (``NegativeEvidence.supported``). Returns intervals, the per-frame
     predictions in the reference format and metadata for the output JSON.
     """
     t_frames = np.asarray(sorted(int(t) for t in timestamps), dtype=np.int64)
@@ -602,7 +622,7 @@ def graph_tracker(obs: Observations, timestamps: Sequence[int], cfg: GraphConfig
         it = tqdm(ids, desc="graph" + (" (causal)" if causal else ""), unit="instance")
     for inst in it:
         sub = select_instance_rows(obs, inst, cfg.score_threshold)
-        solutions.append(solve(inst, sub, t_frames, cfg, negative))
+        solutions.append(solve(inst, sub, t_frames, cfg, negative, support))
     n_excluded = 0
     if not causal and cfg.exclusion_radius_m > 0:
         n_excluded = exclude_confusions(solutions, t_frames, cfg, negative)
@@ -616,6 +636,7 @@ def graph_tracker(obs: Observations, timestamps: Sequence[int], cfg: GraphConfig
                           "recording (intervals with backfilled=true)") if not causal else "causal: no back-fill",
         "switches": cfg.switches,
         "negative_evidence": negative is not None,
+        "support_test": support is not None,
         "n_observations": int(sum(s.n_observations for s in solutions)),
         "n_chunks": int(sum(s.n_chunks for s in solutions)),
         "n_stands_excluded": n_excluded,

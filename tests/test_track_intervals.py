@@ -1,0 +1,65 @@
+"""Position intervals: per-frame predictions, JSON round trip, bad files; smoothing another tracker's results."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from egograph.io.detections import Prediction
+from egograph.io.errors import InputError
+from egograph.track.graph import GraphConfig, graph_tracker
+from egograph.track.intervals import PositionInterval, per_frame_predictions, read_intervals_json, write_intervals_json
+from egograph.track.smooth import predictions_to_observations
+
+T0, FRAME = 133_400_000_000_000_000, 333_333
+TS = T0 + FRAME * np.arange(100, dtype=np.int64)
+
+
+def iv(instance, f0, f1, xyz=(1.0, 2.0, 3.0)) -> PositionInterval:
+    return PositionInterval(instance, int(TS[f0]), int(TS[f1]), xyz, (0.01 * np.eye(3)).tolist(), 5, 0.8)
+
+
+def test_per_frame_predictions_cover_exactly_the_interval_frames():
+    out = per_frame_predictions([iv(0, 10, 19), iv(2, 15, 99, (0.5, 0.5, 0.5))], TS)
+    assert len(out) == 100
+    assert out[int(TS[9])] == []
+    assert [p.instance for p in out[int(TS[10])]] == [0]
+    assert [p.instance for p in out[int(TS[17])]] == [0, 2]
+    assert [p.instance for p in out[int(TS[20])]] == [2]
+    assert out[int(TS[12])][0] == Prediction(0, (1.0, 2.0, 3.0), 0.8)
+
+
+def test_json_round_trip(tmp_path):
+    rows = [iv(0, 0, 50), iv(1, 20, 99)]
+    write_intervals_json(tmp_path / "i.json", rows, {"tracker": "graph"})
+    back, meta = read_intervals_json(tmp_path / "i.json")
+    assert meta == {"tracker": "graph"}
+    assert [(r.instance, r.t_start, r.t_end, r.xyz) for r in back] == [(r.instance, r.t_start, r.t_end, r.xyz) for r in rows]
+    assert back[0].sigma_m == pytest.approx(0.1)
+
+
+def test_bad_interval_file_names_the_file_and_entry(tmp_path):
+    p = tmp_path / "i.json"
+    p.write_text('{"intervals": [{"instance": 0}]}')
+    with pytest.raises(InputError, match=r"i\.json.*interval 0"):
+        read_intervals_json(p)
+    p.write_text("{not json")
+    with pytest.raises(InputError, match="not JSON"):
+        read_intervals_json(p)
+
+
+def test_smoothing_noisy_per_frame_results_gives_one_interval_per_stand():
+    rng = np.random.default_rng(0)
+    per_frame = {}
+    for f, t in enumerate(TS):
+        base = np.array([1.0, 0.9, 2.0]) if f < 60 else np.array([3.0, 0.8, 1.0])
+        per_frame[int(t)] = [Prediction(0, tuple(base + 0.03 * rng.standard_normal(3)), 0.7)]
+    poses = np.tile(np.eye(4), (100, 1, 1))
+    obs = predictions_to_observations(per_frame, TS, poses, np.ones(100, bool))
+    assert len(obs) == 100 and np.all(obs.score == 1)
+    cfg = GraphConfig(score_threshold=0.0, alias_rounds=0, negative_evidence=False)
+    res = graph_tracker(obs, TS, cfg)
+    assert len(res.intervals) == 2
+    a, b = res.intervals
+    assert np.linalg.norm(np.subtract(a.xyz, [1.0, 0.9, 2.0])) < 0.02
+    assert abs((a.t_end - T0) / FRAME - 59) <= 2 and abs((b.t_start - T0) / FRAME - 60) <= 2
