@@ -1,0 +1,176 @@
+"""Pose-graph refinement (``egograph refine``): accuracy against synth_gt, robustness, outputs."""
+
+from __future__ import annotations
+
+import json
+import shutil
+
+import numpy as np
+import pytest
+
+from egograph.cli import main
+from egograph.config import load_config
+from egograph.geometry.hl2ss import invert_rigid
+from egograph.io.errors import InputError
+from egograph.io.poses import read_pose_json, write_pose_json
+from egograph.io.recording import Recording
+from egograph.poses.config import RefineConfig
+from egograph.poses.evaluate import evaluate_trajectory
+from egograph.poses.refine import apply_poses, refine_recording, refinement_factors
+
+MESH_ONLY = ["icp=false", "mesh=true", "colmap=false"]
+
+
+def _seq(root):
+    return next(p for p in root.iterdir() if (p / "pv_pose.json").is_file())
+
+
+def _truth(root):
+    gt = root / "synth_gt" / _seq(root).name
+    ts, pv, _ = read_pose_json(gt / "pv_pose.json")
+    _, depth, _ = read_pose_json(gt / "depth_ahat_pose.json")
+    return ts, pv, depth
+
+
+def _copy_with_poses(src, dst, make_error, frames: int | None = None):
+    """Copy a recording, replacing its reported poses by ``truth @ error`` (the generator's model)."""
+    shutil.copytree(src, dst)
+    ts, pv, depth = _truth(dst)
+    err = make_error(ts, pv)
+    n = frames or len(ts)
+    seq = _seq(dst)
+    write_pose_json(seq / "pv_pose.json", ts[:n], (pv @ err)[:n])
+    write_pose_json(seq / "depth_ahat_pose.json", ts[:n], (depth @ err)[:n])
+    return dst
+
+
+def _jump_errors(ts, pv):
+    """Relocalisation jumps (4-6 cm, 0.3-0.5 deg, persisting) after fast head turns, plus jitter and drift,
+    drawn with the generator's own error model."""
+    from egograph.synth.config import PoseErrorConfig
+    from egograph.synth.sensors import pose_errors
+
+    rel = np.einsum("nij,nkj->nik", pv[1:, :3, :3], pv[:-1, :3, :3])
+    ang = np.degrees(np.arccos(np.clip((np.trace(rel, axis1=1, axis2=2) - 1) / 2, -1, 1))) * 30.0
+    cfg = PoseErrorConfig(jump_rate=1.0, jump_trans=[0.04, 0.06], jump_rot=[0.3, 0.5])
+    err, jumps = pose_errors(np.random.default_rng(5), len(ts), 30.0, np.r_[0.0, ang], cfg,
+                             pivot=np.array([2.25, 1.0, 2.0]))
+    assert len(jumps) >= 2
+    return err
+
+
+@pytest.fixture(scope="module")
+def jump_rec(tiny_rec, tmp_path_factory):
+    return _copy_with_poses(tiny_rec, tmp_path_factory.mktemp("jump") / "rec", _jump_errors)
+
+
+@pytest.fixture(scope="module")
+def exact_rec(tiny_rec, tmp_path_factory):
+    """The tiny recording with the true poses as the reported ones (pose error switched off)."""
+    return _copy_with_poses(tiny_rec, tmp_path_factory.mktemp("exact") / "rec", lambda ts, pv: np.tile(np.eye(4), (len(ts), 1, 1)))
+
+
+def test_mesh_refinement_halves_ate_with_jumps(jump_rec):
+    rec = Recording.open(jump_rec)
+    _, gt, gt_depth = _truth(jump_rec)
+    before = evaluate_trajectory(rec.pv_poses, gt)
+    res = refine_recording(rec, load_config(RefineConfig, None, MESH_ONLY))
+    after = evaluate_trajectory(res.pv_poses, gt)
+    assert before.ate_rmse_m > 0.04
+    assert after.ate_rmse_m <= 0.5 * before.ate_rmse_m
+    assert after.rpe_trans_m <= 1.05 * before.rpe_trans_m and after.rpe_rot_deg <= 1.05 * before.rpe_rot_deg
+    # the AHAT poses follow: same gain against their own truth
+    assert evaluate_trajectory(res.depth_poses, gt_depth).ate_rmse_m <= 0.5 * evaluate_trajectory(rec.depth_poses, gt_depth).ate_rmse_m
+    assert res.factor_counts["mesh"] >= 10
+
+
+def test_pv_and_ahat_stay_consistent(jump_rec):
+    rec = Recording.open(jump_rec)
+    res = refine_recording(rec, load_config(RefineConfig, None, MESH_ONLY + ["mesh_stride=20"]))
+    # AHAT rig -> PV camera per frame (includes the few-ms capture offset) is kept as reported
+    rel_before = rec.depth_poses @ invert_rigid(rec.pv_poses)
+    rel_after = res.depth_poses @ invert_rigid(res.pv_poses)
+    assert np.abs(rel_after - rel_before).max() < 1e-9
+
+
+def test_no_harm_without_pose_error(exact_rec):
+    rec = Recording.open(exact_rec)
+    res = refine_recording(rec, load_config(RefineConfig, None, MESH_ONLY))
+    assert res.change["trans_rms_m"] < 0.005
+    assert res.change["rot_rms_deg"] < 0.2
+
+
+def test_corrupted_stretch_spike_rejected(tiny_rec, tmp_path):
+    """Missing depth frames and a 1 m / 20 deg pose spike: refined without error, the spike rejected."""
+    root = _copy_with_poses(tiny_rec, tmp_path / "rec", lambda ts, pv: np.tile(np.eye(4), (len(ts), 1, 1)), frames=90)
+    seq = _seq(root)
+    ts, pv, _ = read_pose_json(seq / "pv_pose.json")
+    _, depth, _ = read_pose_json(seq / "depth_ahat_pose.json")
+    for t in ts[20:35]:
+        (seq / "depth_ahat" / f"{t}.png").unlink()
+    spike = np.eye(4)
+    c, s = np.cos(np.radians(20)), np.sin(np.radians(20))
+    spike[:3, :3] = [[c, 0, -s], [0, 1, 0], [s, 0, c]]
+    spike[3, :3] = [1.0, 0.2, -0.5]
+    k = 60
+    pv[k], depth[k] = pv[k] @ spike, depth[k] @ spike
+    write_pose_json(seq / "pv_pose.json", ts, pv)
+    write_pose_json(seq / "depth_ahat_pose.json", ts, depth)
+    rec = Recording.open(root)
+    _, gt, _ = _truth(root)
+    res = refine_recording(rec, load_config(RefineConfig, None, ["icp=true", "mesh=true", "mesh_stride=15"]))
+    err = np.linalg.norm(res.pv_poses[:, 3, :3] - gt[:90, 3, :3], axis=1)
+    assert np.linalg.norm(pv[k, 3, :3] - gt[k, 3, :3]) > 1.0
+    assert err[k] < 0.05                       # the spike is gone
+    assert np.delete(err, k).max() < 0.02      # and did not bend its neighbours
+    assert res.stats["icp"]["registered"] < 90  # frames without depth were skipped
+
+
+def test_refinement_factors_key_scheme(jump_rec):
+    import gtsam
+
+    rec = Recording.open(jump_rec)
+    rg = refinement_factors(rec, load_config(RefineConfig, None, ["icp=false", "mesh=false"]))
+    assert rg.values.size() == 2 * len(rec)
+    for i in (0, 17, len(rec) - 1):
+        x = rg.values.atPose3(gtsam.symbol("x", i))
+        assert np.allclose(x.matrix(), rec.pv_poses[i].T)
+        assert rg.values.exists(gtsam.symbol("w", i))
+        # AHAT camera -> world through the documented offset
+        ahat = x.compose(gtsam.Pose3(rg.ahat_offsets[i])).matrix().T
+        assert np.allclose(ahat, invert_rigid(rec.ahat.extrinsics) @ rec.depth_poses[i])
+    assert rg.graph.size() == len(rec) * 2 + len(rec) - 1  # jitter + prior + drift
+
+
+def test_cli_refine_writes_outputs_and_apply_poses(jump_rec, tmp_path, capsys):
+    out = tmp_path / "refined"
+    assert main(["refine", str(jump_rec), "--out", str(out), "--quiet", "--set", "refine.icp=false",
+                 "--set", "refine.mesh_stride=20"]) == 0
+    for name in ("pv_pose.json", "depth_ahat_pose.json", "pv_pose.tum", "depth_ahat_pose.tum", "report.json", "report.md"):
+        assert (out / name).is_file(), name
+    report = json.loads((out / "report.json").read_text())
+    assert report["eval_refined"]["ate_rmse_m"] < report["eval_reported"]["ate_rmse_m"]
+    rec = Recording.open(jump_rec)
+    new = apply_poses(rec, out)
+    assert new.pv_valid.all() and not np.allclose(new.pv_poses, rec.pv_poses)
+    ts, pv, _ = read_pose_json(out / "pv_pose.json")
+    assert np.array_equal(ts, rec.timestamps) and np.allclose(new.pv_poses, pv)
+    # eval-poses reads the folder and the TUM file alike
+    j1, j2 = tmp_path / "a.json", tmp_path / "b.json"
+    assert main(["eval-poses", str(jump_rec), str(out), "--json", str(j1)]) == 0
+    assert main(["eval-poses", str(jump_rec), str(out / "pv_pose.tum"), "--json", str(j2)]) == 0
+    a, b = json.loads(j1.read_text()), json.loads(j2.read_text())
+    assert a["ate_rmse_m"] == pytest.approx(b["ate_rmse_m"], abs=1e-6)
+    assert a["ate_rmse_m"] == pytest.approx(report["eval_refined"]["ate_rmse_m"], abs=1e-9)
+    # never onto the input
+    assert main(["refine", str(jump_rec), "--out", str(_seq(jump_rec)), "--quiet"]) == 2
+    assert "refusing" in capsys.readouterr().err
+
+
+def test_apply_poses_rejects_other_timestamps(jump_rec, tmp_path):
+    rec = Recording.open(jump_rec)
+    write_pose_json(tmp_path / "pv_pose.json", rec.timestamps[:-3], rec.pv_poses[:-3])
+    with pytest.raises(InputError, match="3 recording timestamp"):
+        apply_poses(rec, tmp_path)
+    with pytest.raises(InputError):
+        apply_poses(rec, tmp_path / "nope")
