@@ -464,6 +464,10 @@ def build_parser() -> argparse.ArgumentParser:
     s.add_argument("--set", dest="overrides", action="append", default=[], metavar="KEY=VALUE",
                    help="override a synthetic-recording knob")
     s.set_defaults(func=cmd_demo)
+
+    from egograph import cli_poses
+
+    cli_poses.add_parsers(sub, _add_config_args, _add_rec_args, DEFAULT_CONFIG)
     return p
 
 

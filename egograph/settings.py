@@ -12,6 +12,7 @@ from dataclasses import dataclass
 
 from egograph.config import knob, section
 from egograph.geometry.lift import LiftConfig
+from egograph.poses.config import RefineConfig
 from egograph.track.baselines import BaselineConfig
 from egograph.track.graph import GraphConfig
 from egograph.track.regt import RegtConfig
@@ -31,3 +32,4 @@ class EgographConfig:
     track: BaselineConfig = section(BaselineConfig, "the paper's baseline trackers (memory, kf)")
     graph: GraphConfig = section(GraphConfig, "the factor-graph tracker (graph, graph-causal), regt and smooth")
     regt: RegtConfig = section(RegtConfig, "ground-truth re-estimation audit")
+    refine: RefineConfig = section(RefineConfig, "pose-graph refinement of the HoloLens poses (egograph refine)")
