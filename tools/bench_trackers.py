@@ -6,8 +6,10 @@ SVOE and MVPE, both lifting modes, compared under the IT3DEgo protocol.
 
 Builds (or reuses) the cached benchmark set (tools/benchset.py), lifts each detection set
 with `reference` and `robust` lifting (observations cached beside the recordings), runs
-`memory` and `kf`, and prints one table per setting in the layout of the paper's tables,
-with ratios against `kf` on `reference` lifting (the published pipeline). Totals pool the
+`memory`, `kf`, `graph` (offline), `graph-causal`, the "+graph" smoothing of `memory` and
+`kf` results, and an `oracle` row (true boxes lifted, true intervals), and prints one table
+per setting in the layout of the paper's tables, with ratios against `kf` on `reference`
+lifting (the published pipeline), then the interval-level scores and the graph's targets. Totals pool the
 counts of all recordings, as the reference evaluator does over sequences. Also prints the
 3D error of lifted true detections per lifting mode, lifting speed, and the calibration
 bands of the synthetic front-end (memory + reference lifting).
@@ -32,7 +34,10 @@ from egograph.eval.report import EvalReport, comparison_table, plot_pr  # noqa: 
 from egograph.geometry.lift import synth_lift_errors  # noqa: E402
 from egograph.geometry.observations import Observations  # noqa: E402
 from egograph.io.atomic import atomic_write_text  # noqa: E402
-from egograph.pipeline import evaluate, lift, open_recording, track, write_results  # noqa: E402
+from egograph.pipeline import (  # noqa: E402
+    GRAPH_TRACKERS, evaluate, lift, open_recording, track, track_graph, write_results,
+)
+from graph_extras import observable_intervals, oracle, print_graph_targets, score, smooth_results  # noqa: E402
 from egograph.settings import EgographConfig  # noqa: E402
 
 REPO = Path(__file__).resolve().parents[1]
@@ -40,7 +45,8 @@ BANDS = {  # memory + reference lifting must land here (issue: calibration of th
     "svoe": {"P@0.25": (15, 32), "P@1.5": (48, 70), "L2 (m)": (0.9, 1.8)},
     "mvpe": {"P@0.25": (45, 66), "P@1.5": (65, 84), "L2 (m)": (0.45, 0.9)},
 }
-TRACKERS = ("memory", "kf")
+TRACKERS = ("memory", "kf", "graph", "graph-causal")
+SMOOTHED = ("memory", "kf")  # trackers whose per-frame output also gets the "+graph" smoothing row
 MODES = ("reference", "robust")
 
 
@@ -63,11 +69,14 @@ def main() -> None:
     ap.add_argument("--relift", action="store_true", help="ignore cached observations")
     ap.add_argument("--trackers", nargs="+", default=list(TRACKERS))
     ap.add_argument("--modes", nargs="+", default=list(MODES), help="lifting modes")
+    ap.add_argument("--no-oracle", dest="trackers_extra", action="store_const", const=(), default=("oracle",),
+                    help="skip the oracle row (true boxes lifted, true intervals)")
     args = ap.parse_args()
 
     roots = benchmark_set(args.seeds, args.frames, overrides=args.synth_overrides, cache=args.cache)
     cfg = load_config(EgographConfig, REPO / "configs" / "default.yaml", args.overrides)
     reports: dict[str, dict[str, EvalReport]] = {s: {} for s in ("svoe", "mvpe")}
+    extras: dict[tuple[str, str], dict] = {}
     lift_stats: dict[tuple[str, str], dict] = {}
     timing: dict[str, float] = {}
     for root in roots:
@@ -91,17 +100,33 @@ def main() -> None:
                 st = lift_stats.setdefault((det_set, mode), {"seconds": 0.0, "frames": 0, "dets": 0})
                 st.setdefault("err", []).append(err[true & np.isfinite(err)])
                 timing[f"lift {mode}"] = timing.get(f"lift {mode}", 0.0) + time.perf_counter() - t0
+                observable = observable_intervals(rec, obs, det_set, cfg.graph.score_threshold)
                 for tracker in args.trackers:
                     t1 = time.perf_counter()
-                    per_frame = track(rec, tracker, obs, cfg)
+                    intervals = None
+                    if tracker in GRAPH_TRACKERS:
+                        result = track_graph(rec, obs, cfg, causal=tracker == "graph-causal")
+                        per_frame, intervals = result.per_frame, result.intervals
+                    else:
+                        per_frame = track(rec, tracker, obs, cfg)
                     timing[f"track {tracker}"] = timing.get(f"track {tracker}", 0.0) + time.perf_counter() - t1
-                    res = args.out / seq / f"{det_set}_{tracker}_{mode}"
-                    write_results(res, rec, per_frame)
                     name = f"{tracker} ({mode} lift)"
-                    full = evaluate(rec, res)
-                    reports[det_set].setdefault(name, EvalReport())
-                    reports[det_set][name].add(seq, next(iter(full.sequences.values())).result,
-                                               full.intervals, None)
+                    res = args.out / seq / f"{det_set}_{tracker}_{mode}"
+                    score(reports, extras, det_set, name, rec, res, per_frame, observable, intervals)
+                    if tracker in SMOOTHED and "graph" in args.trackers:
+                        t1 = time.perf_counter()
+                        sm = smooth_results(rec, per_frame, cfg)
+                        timing[f"smooth {tracker}"] = timing.get(f"smooth {tracker}", 0.0) + time.perf_counter() - t1
+                        score(reports, extras, det_set, f"{tracker}+graph ({mode} lift)", rec,
+                              args.out / seq / f"{det_set}_{tracker}+graph_{mode}", sm.per_frame, observable,
+                              sm.intervals)
+            if "oracle" in args.trackers_extra:
+                t1 = time.perf_counter()
+                per_frame, intervals = oracle(rec, root, cfg, det_set)
+                timing["oracle"] = timing.get("oracle", 0.0) + time.perf_counter() - t1
+                observable = observable_intervals(rec, obs, det_set, cfg.graph.score_threshold)
+                score(reports, extras, det_set, "oracle (true boxes, true intervals)", rec,
+                      args.out / seq / f"{det_set}_oracle", per_frame, observable, intervals)
     args.out.mkdir(parents=True, exist_ok=True)
     md_all = [f"Benchmark set: {len(roots)} synthetic recordings x {args.frames} frames (seeds "
               f"{', '.join(map(str, args.seeds))}); counts pooled over the set.\n"]
@@ -126,6 +151,7 @@ def main() -> None:
         rob = np.median(np.concatenate(lift_stats[(det_set, "robust")]["err"]))
         print(f"\n{det_set}: reference / robust median lifting error = {ref / rob:.1f}x")
 
+    print_graph_targets(reports, extras)
     print("\n### Calibration bands (memory + reference lifting, pooled over the set)\n")
     ok_all = True
     for det_set, bands in BANDS.items():

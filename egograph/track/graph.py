@@ -71,6 +71,9 @@ class GraphConfig:
                                     "fires where landmarks differ by more than still_sigma_m/switch_sigma")
     switches: str = knob("switchable", "motion-break factor: 'switchable' (switch variables, CustomFactor) or "
                                        "'dcs' (dynamic covariance scaling, closed form, all C++)")
+    dcs_prepass: bool = knob(True, "switchable only: a DCS solve first; boundaries it finds clearly still get a plain "
+                                   "zero-motion factor, the rest explicit switches (far fewer Python CustomFactors)")
+    prepass_keep: float = knob(0.95, "a boundary whose DCS-implied switch is at least this is clearly still")
     break_below: float = knob(0.5, "a switch below this value (0-1) is a motion break")
     min_observations: int = knob(3, "fewest inlier detections a stationary interval needs")
     min_inlier_share: float = knob(0.6, "share of a segment's detections its centre must explain to be stationary")
@@ -167,26 +170,34 @@ def chunk_medians(world: np.ndarray, chunk: np.ndarray, n: int) -> np.ndarray:
     return out
 
 
-def add_break_factors(graph: gtsam.NonlinearFactorGraph, values: gtsam.Values, k: int, cfg: GraphConfig) -> None:
-    """Motion-break factor between landmarks k-1 and k (and the switch variable, if any)."""
-    if cfg.switches == "switchable":
+def add_break_factors(graph: gtsam.NonlinearFactorGraph, values: gtsam.Values, k: int, cfg: GraphConfig,
+                      kind: str | None = None) -> None:
+    """Motion-break factor between landmarks k-1 and k (and the switch variable, if any).
+    ``kind``: 'switchable' | 'dcs' | 'still' (a plain Gaussian zero-motion factor); default cfg.switches."""
+    kind = kind or cfg.switches
+    if kind == "switchable":
         graph.add(switchable_between(L(k - 1), L(k), S(k), cfg.still_sigma_m))
         graph.add(switch_prior(S(k), cfg.switch_sigma))
         values.insert(S(k), np.array([1.0]))
-    elif cfg.switches == "dcs":
+    elif kind == "dcs":
         graph.add(dcs_between(L(k - 1), L(k), cfg.still_sigma_m, dcs_phi(cfg.switch_sigma)))
+    elif kind == "still":
+        graph.add(gtsam.BetweenFactorPoint3(L(k - 1), L(k), gtsam.Point3(0, 0, 0),
+                                            gtsam.noiseModel.Isotropic.Sigma(3, cfg.still_sigma_m)))
     else:
-        raise ValueError(f"unknown switches {cfg.switches!r}: 'switchable' or 'dcs'")
+        raise ValueError(f"unknown switches {kind!r}: 'switchable' or 'dcs'")
 
 
 def instance_graph(world: np.ndarray, cov: np.ndarray, chunk: np.ndarray, init: np.ndarray,
-                   cfg: GraphConfig) -> tuple[gtsam.NonlinearFactorGraph, gtsam.Values]:
+                   cfg: GraphConfig, kinds: Sequence[str] | None = None) -> tuple[gtsam.NonlinearFactorGraph, gtsam.Values]:
+    """One instance's graph: a landmark per chunk (initial ``init``), break factors between
+    consecutive ones (``kinds[k-1]`` per boundary, default cfg.switches), detection factors."""
     graph = gtsam.NonlinearFactorGraph()
     values = gtsam.Values()
     for k, p in enumerate(init):
         values.insert(L(k), gtsam.Point3(*p))
         if k:
-            add_break_factors(graph, values, k, cfg)
+            add_break_factors(graph, values, k, cfg, None if kinds is None else kinds[k - 1])
     add_detection_factors(graph, np.array([L(int(c)) for c in chunk]), world, cov, cfg.noise)
     return graph, values
 
@@ -199,7 +210,7 @@ def solve_lm(graph: gtsam.NonlinearFactorGraph, values: gtsam.Values, max_iterat
     return gtsam.LevenbergMarquardtOptimizer(graph, values, params).optimize()
 
 
-def switch_values(result: gtsam.Values, landmarks: np.ndarray, cfg: GraphConfig) -> np.ndarray:
+def switch_values(result: gtsam.Values | None, landmarks: np.ndarray, cfg: GraphConfig) -> np.ndarray:
     """Effective switch (0-1) per chunk boundary k-1 -> k, index k-1."""
     n = len(landmarks)
     if cfg.switches == "switchable":
@@ -328,13 +339,34 @@ def merge_segments(segs: list[Segment], world: np.ndarray, cov: np.ndarray, cfg:
 # --------------------------------------------------------------------------- per instance
 
 
+def _solve_chain(world, cov, chunk, init, cfg: GraphConfig) -> tuple[np.ndarray, np.ndarray]:
+    """Landmarks and effective switches of one chain. With switchable factors and
+    ``dcs_prepass``, a DCS solve (all C++) first finds the boundaries that are clearly still
+    (implied switch >= ``prepass_keep``); those get a plain zero-motion factor, every other
+    boundary an explicit switch, and the switchable solve starts from the DCS landmarks."""
+    n = len(init)
+    if cfg.switches == "switchable" and cfg.dcs_prepass and n > 1:
+        graph, values = instance_graph(world, cov, chunk, init, cfg, ["dcs"] * (n - 1))
+        dcs = dataclasses.replace(cfg, switches="dcs")
+        landmarks = landmarks_of(solve_lm(graph, values, cfg.max_iterations), n)
+        implied = switch_values(None, landmarks, dcs)
+        kinds = ["still" if v >= cfg.prepass_keep else "switchable" for v in implied]
+        graph, values = instance_graph(world, cov, chunk, landmarks, cfg, kinds)
+        result = solve_lm(graph, values, cfg.max_iterations)
+        landmarks = landmarks_of(result, n)
+        sw = np.array([switch_clipped(result, S(k)) if kinds[k - 1] == "switchable" else 1.0 for k in range(1, n)])
+        return landmarks, sw
+    graph, values = instance_graph(world, cov, chunk, init, cfg)
+    result = solve_lm(graph, values, cfg.max_iterations)
+    landmarks = landmarks_of(result, n)
+    return landmarks, switch_values(result, landmarks, cfg)
+
+
 def _solve_instance_offline(world, cov, candidates, chunk, cfg: GraphConfig):
     n = int(chunk.max()) + 1
     init = chunk_medians(world, chunk, n)
     for round_ in range(max(0, cfg.alias_rounds) + 1):
-        graph, values = instance_graph(world, cov, chunk, init, cfg)
-        result = solve_lm(graph, values, cfg.max_iterations)
-        landmarks = landmarks_of(result, n)
+        landmarks, switches = _solve_chain(world, cov, chunk, init, cfg)
         if round_ == cfg.alias_rounds or candidates is None:
             break
         better = nearest_candidates(candidates, landmarks[chunk])
@@ -342,7 +374,7 @@ def _solve_instance_offline(world, cov, candidates, chunk, cfg: GraphConfig):
             break
         world = better
         init = landmarks
-    return world, landmarks, switch_values(result, landmarks, cfg)
+    return world, landmarks, switches
 
 
 def segments_from_switches(chunk: np.ndarray, switches: np.ndarray, break_below: float) -> list[np.ndarray]:
