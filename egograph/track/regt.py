@@ -32,7 +32,8 @@ from egograph.track.graph import GraphConfig, robust_point
 @dataclass
 class RegtConfig:
     audit_m: float = knob(0.1, "audit: flag a given centre farther than this from the re-estimate, metres ...")
-    audit_sigma: float = knob(3.0, "... and farther than this many sigmas (Mahalanobis, re-estimate covariance)")
+    audit_sigma: float = knob(4.0, "... and farther than this many sigmas (Mahalanobis, re-estimate covariance; "
+                                   "4 sigma in 3D is a chi2 tail of 0.1 %: only gross disagreements)")
 
 
 @dataclass
