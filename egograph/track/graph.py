@@ -84,6 +84,9 @@ class GraphConfig:
     min_carry_observations: int = knob(2, "a non-stationary segment with at least this many detections within "
                                           "carry_range_m is a carry (it ends the interval before it); with fewer "
                                           "it is taken for scattered false matches and ignored")
+    pickup_radius_m: float = knob(3.0, "a carry must start within this of the stand before it or end within this "
+                                        "of the stand after it (pick-up, put-down; the first detections of a "
+                                        "carry often come a few steps later, after the motion blur), metres")
     carry_spread_m: float = knob(0.03, "a near segment whose detections spread more than this (median, metres) "
                                        "and more than their offsets to the head do is an object in hand")
     exclusion_radius_m: float = knob(0.15, "offline: a stand of one instance within this distance of another "
@@ -274,6 +277,34 @@ def moves_with_camera(world: np.ndarray, camera: np.ndarray, range_m: np.ndarray
     return bool(spread_world > cfg.carry_spread_m and spread_world > spread_rel)
 
 
+def drop_unrelated_carries(segs: list[Segment], world: np.ndarray, cfg: GraphConfig) -> list[Segment]:
+    """A carry starts where the object stood (the pick-up) or ends where it next stands (the
+    put-down). The carried segments between two stands form one carry: it is kept when its
+    first detection lies within ``pickup_radius_m`` of the stand before it, or its last within
+    that of the stand after it; a carry near neither is a look-alike being carried: dropped."""
+    out: list[Segment] = []
+    run: list[Segment] = []
+
+    def flush(nxt: Segment | None) -> None:
+        if run:
+            prev = next((seg for seg in reversed(out) if seg.stationary), None)
+            first, last = world[run[0].rows[0]], world[run[-1].rows[-1]]
+            near_prev = prev is not None and np.linalg.norm(first - prev.xyz) <= cfg.pickup_radius_m
+            near_next = nxt is not None and np.linalg.norm(last - nxt.xyz) <= cfg.pickup_radius_m
+            if near_prev or near_next:
+                out.extend(run)
+            run.clear()
+
+    for seg in segs:
+        if seg.stationary:
+            flush(seg)
+            out.append(seg)
+        else:
+            run.append(seg)
+    flush(None)
+    return out
+
+
 def held_in_mid_air(seg: Segment, range_m: np.ndarray, cfg: GraphConfig, support: SupportFn | None) -> bool:
     """A hand holding an object still looks like a stand in the world; but it is seen only from
     close by (median range <= ``carry_range_m``) and nothing in the scene mesh holds it up. Both
@@ -452,7 +483,8 @@ def track_instance_offline(instance: int, obs: Observations, t_frames: np.ndarra
     for seg in segs:
         seg.stationary = seg.stationary and not held_in_mid_air(seg, obs.range_m, cfg, support)
     frames = obs.frame.astype(np.int64)
-    segs = merge_segments(classify_moving(segs, obs.range_m, cfg), world, cov, cfg, instance, frames, negative)
+    segs = drop_unrelated_carries(classify_moving(segs, obs.range_m, cfg), world, cfg)
+    segs = merge_segments(segs, world, cov, cfg, instance, frames, negative)
     sol = InstanceSolution(instance, [], switches, len(obs), int(chunk.max()) + 1)
     sol.segments, sol.world, sol.cov, sol.frames = segs, world, cov, frames
     sol.intervals = intervals_from_segments(instance, segs, t_frames, sol.frames, cfg, backfill_start=True,
