@@ -34,10 +34,10 @@ class RefineConfig:
     jump_window: int = knob(1, "... loosens the drift factors within this many frames of it ...")
     jump_sigma_rot: float = knob(0.4, "... to this extra std, degrees ...")
     jump_sigma_trans: float = knob(0.04, "... and this extra std, metres (0 = no jump model)")
-    prior_sigma_rot: float = knob(2.0, "std of the weak prior pulling the HoloLens world correction to identity "
+    prior_sigma_rot: float = knob(5.0, "std of the weak prior pulling the HoloLens world correction to identity "
                                        "(i.e. the refined poses to the reported ones), degrees")
-    prior_sigma_trans: float = knob(0.25, "std of that weak prior, metres")
-    jump_confirm: list[float] = knob([0.015, 0.2], "after a first solve, a loosened link stays loose only when the "
+    prior_sigma_trans: float = knob(1.0, "std of that weak prior, metres")
+    jump_confirm: list[float] = knob([0.035, 0.4], "after a first solve, a loosened link stays loose only when the "
                                                      "estimated jump there exceeds [metres, degrees]; the others are "
                                                      "tightened again and the graph re-solved (so view-dependent "
                                                      "mesh errors do not move drift-free stretches); [] = one solve")
