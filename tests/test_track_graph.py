@@ -200,3 +200,15 @@ def test_detections_below_the_score_threshold_are_ignored():
 def test_unknown_switch_kind_is_refused(bad):
     with pytest.raises(ValueError, match="bogus"):
         graph_tracker(make_obs(scenario()), stamps(), GraphConfig(**bad))
+
+
+def test_a_look_alike_carried_far_away_does_not_end_the_stand():
+    # Instance 0 stands at A all along; around frame 450 its look-alike is carried in hand by
+    # the wearer, more than pickup_radius_m from A: those matches must not end A's interval.
+    rng = np.random.default_rng(6)
+    rows = [(f, 0, A + 0.02 * rng.standard_normal(3), 0.7) for f in list(range(0, 400, 3)) + list(range(600, 700, 3))]
+    for f in range(430, 470, 3):
+        rows.append((f, 0, camera_at(np.array([float(f)]))[0] + [0.3, -0.3, 0.2], 0.65))
+    cfg = GraphConfig(negative_evidence=False, pickup_radius_m=1.0)
+    res = graph_tracker(make_obs(rows), stamps(), cfg)
+    assert len(res.intervals) == 1 and frames_of(res.intervals[0]) == (0, N - 1)

@@ -347,9 +347,11 @@ def merge_segments(segs: list[Segment], world: np.ndarray, cov: np.ndarray, cfg:
                    instance: int = -1, frames: np.ndarray | None = None,
                    negative: NegativeFn | None = None) -> list[Segment]:
     """Merge stationary segments at the same place (within ``merge_radius_m``) when every
-    stationary segment between them is weaker: those were false matches (a look-alike seen
-    while the object stood still), or the object was put back where it stood. With negative
-    evidence, two stands between which the place was seen empty stay apart (that switch is off)."""
+    stationary segment between them is weaker: those were false matches (a look-alike seen, or
+    carried nearby, while the object stood still), or the object was put back where it stood
+    (then the frames in hand are reported too: the price of not splitting a stand at every
+    look-alike). With negative evidence, two stands between which the place was seen empty
+    stay apart (that switch is off)."""
     def apart(sa: Segment, sb: Segment) -> bool:
         if negative is None or frames is None:
             return False
