@@ -74,6 +74,7 @@ class GraphConfig:
     dcs_prepass: bool = knob(True, "switchable only: a DCS solve first; boundaries it finds clearly still get a plain "
                                    "zero-motion factor, the rest explicit switches (far fewer Python CustomFactors)")
     prepass_keep: float = knob(0.95, "a boundary whose DCS-implied switch is at least this is clearly still")
+    prepass_window: int = knob(10, "each candidate break is solved with this many chunks of the chain either side")
     break_below: float = knob(0.5, "a switch below this value (0-1) is a motion break")
     min_observations: int = knob(3, "fewest inlier detections a stationary interval needs")
     min_inlier_share: float = knob(0.6, "share of a segment's detections its centre must explain to be stationary")
@@ -383,16 +384,37 @@ def _solve_chain(world, cov, chunk, init, cfg: GraphConfig) -> tuple[np.ndarray,
         dcs = dataclasses.replace(cfg, switches="dcs")
         landmarks = landmarks_of(solve_lm(graph, values, cfg.max_iterations), n)
         implied = switch_values(None, landmarks, dcs)
-        kinds = ["still" if v >= cfg.prepass_keep else "switchable" for v in implied]
-        graph, values = instance_graph(world, cov, chunk, landmarks, cfg, kinds)
-        result = solve_lm(graph, values, cfg.max_iterations)
-        landmarks = landmarks_of(result, n)
-        sw = np.array([switch_clipped(result, S(k)) if kinds[k - 1] == "switchable" else 1.0 for k in range(1, n)])
+        sw = np.ones(n - 1)
+        # Each candidate break is decided in a local window of the chain (a switch only couples
+        # its neighbours), which keeps the Python CustomFactors in small graphs: GTSAM's cost
+        # per CustomFactor call grows with the size of the graph it sits in.
+        for lo, hi in _candidate_windows(np.flatnonzero(implied < cfg.prepass_keep) + 1, n, cfg.prepass_window):
+            rows = (chunk >= lo) & (chunk < hi)
+            kinds = ["still" if implied[k - 1] >= cfg.prepass_keep else "switchable" for k in range(lo + 1, hi)]
+            graph, values = instance_graph(world[rows], cov[rows], chunk[rows] - lo, landmarks[lo:hi], cfg, kinds)
+            result = solve_lm(graph, values, cfg.max_iterations)
+            landmarks[lo:hi] = landmarks_of(result, hi - lo)
+            for k in range(lo + 1, hi):
+                if kinds[k - lo - 1] == "switchable":
+                    sw[k - 1] = switch_clipped(result, S(k - lo))
         return landmarks, sw
     graph, values = instance_graph(world, cov, chunk, init, cfg)
     result = solve_lm(graph, values, cfg.max_iterations)
     landmarks = landmarks_of(result, n)
     return landmarks, switch_values(result, landmarks, cfg)
+
+
+def _candidate_windows(boundaries: np.ndarray, n: int, pad: int) -> list[tuple[int, int]]:
+    """Chunk ranges [lo, hi) reaching ``pad`` chunks either side of each candidate boundary
+    (boundary k joins chunks k-1 and k), overlapping ranges merged."""
+    out: list[list[int]] = []
+    for k in boundaries:
+        lo, hi = max(0, int(k) - pad), min(n, int(k) + pad)
+        if out and lo <= out[-1][1]:
+            out[-1][1] = max(out[-1][1], hi)
+        else:
+            out.append([lo, hi])
+    return [(lo, hi) for lo, hi in out]
 
 
 def _solve_instance_offline(world, cov, candidates, chunk, cfg: GraphConfig):
