@@ -31,6 +31,7 @@ ROWS = {
     "+colmap": ["icp=false", "mesh=false", "colmap=true"],
     "all": ["icp=true", "mesh=true", "colmap=true"],
     "all-no-colmap": ["icp=true", "mesh=true", "colmap=false"],
+    "mesh+colmap": ["icp=false", "mesh=true", "colmap=true"],
 }
 
 
@@ -81,7 +82,7 @@ def exact_mirror(root: Path) -> Path:
     return out
 
 
-def run(root: Path, rows: list[str], extra: list[str], rpe_delta: int) -> list[dict]:
+def run(root: Path, rows: list[str], extra: list[str], rpe_delta: int, out_dir: Path | None = None) -> list[dict]:
     from egograph.config import load_config
     from egograph.io.poses import read_pose_json
     from egograph.io.recording import Recording
@@ -98,6 +99,11 @@ def run(root: Path, rows: list[str], extra: list[str], rpe_delta: int) -> list[d
         r = refine_recording(rec, cfg, progress=False)
         total = time.perf_counter() - t
         e = evaluate_trajectory(r.pv_poses, gt, rpe_delta).as_dict()
+        if out_dir is not None:
+            from egograph.poses.refine import write_refined
+
+            write_refined(r, Path(out_dir) / root.name / row.replace("+", "plus_"), rec, cfg,
+                          {"eval_reported": out[0], "eval_refined": e})
         out.append({"recording": str(root), "row": row, **e, "seconds": total, "stages": r.stage_seconds,
                     "change": r.change, "factors": r.factor_counts,
                     "stats": {k: v for k, v in r.stats.items() if k != "solver"}})
@@ -139,6 +145,7 @@ def main() -> None:
     ap.add_argument("--set", dest="overrides", action="append", default=[], help="refine.* override (without 'refine.')")
     ap.add_argument("--rpe-delta", type=int, default=1)
     ap.add_argument("--json", type=Path)
+    ap.add_argument("--out-dir", type=Path, help="also write each row's refined poses to OUT_DIR/<seed>/<row>/")
     a = ap.parse_args()
     syn = list(a.synth_overrides)
     if a.rgb:
@@ -151,7 +158,7 @@ def main() -> None:
         roots = [exact_mirror(r) for r in roots]
     results = []
     for root in roots:
-        results += run(root, a.rows, a.overrides, a.rpe_delta)
+        results += run(root, a.rows, a.overrides, a.rpe_delta, a.out_dir)
     print()
     print(table(results))
     if a.json:
