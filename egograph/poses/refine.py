@@ -166,10 +166,18 @@ def refinement_factors(rec, cfg: RefineConfig | None = None, progress: bool = Fa
     """Every refinement factor of ``rec`` as one ``gtsam.NonlinearFactorGraph`` + initial ``gtsam.Values``.
 
     Keys: ``gtsam.symbol('x', i)`` = PV camera -> world ``Pose3`` of frame i (column
-    convention, ``Pose3(pv_pose_row.T)``). The COLMAP stage triangulates with the poses
-    solved from the other sources first (it needs good poses), so with ``cfg.colmap`` this
-    function runs one intermediate solve. ``initial`` (N, 4, 4 column) overrides the
-    starting poses of ICP/COLMAP (default: reported).
+    convention, ``Pose3(pv_pose_row.T)``), for every frame with a valid reported PV pose;
+    ``gtsam.symbol('w', i)`` = the HoloLens world correction of frame i (``x_i ≈ w_i ·
+    reported_i``; only with ``cfg.hololens``). AHAT camera -> world is
+    ``x_i.compose(gtsam.Pose3(result.ahat_offsets[i]))``.
+
+    Two intermediate solves may run inside: the COLMAP stage triangulates with the poses
+    solved from the other sources (``cfg.colmap``), and the jump test solves once to decide
+    which relocalisation-jump candidates stay loose (``cfg.jump_confirm``); the returned
+    ``values`` are then that first solution (a better start; the factors are the final
+    ones). ``initial`` (N, 4, 4 column) overrides the starting poses of ICP/COLMAP
+    (default: reported, spike-cleaned). Add more factors on the ``x`` keys (e.g. object
+    landmarks) and solve with :func:`egograph.poses.graph.solve`.
     """
     import gtsam  # noqa: F401  (fail early when missing)
 
