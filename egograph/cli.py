@@ -79,8 +79,18 @@ def _show_config(cfg) -> None:
 def _open(args, cfg):
     from egograph.pipeline import open_recording
 
-    return open_recording(args.rec, cfg, calibration=args.calibration, annotations=args.annotations,
-                          sequence=args.sequence)
+    rec = open_recording(args.rec, cfg, calibration=args.calibration, annotations=args.annotations,
+                         sequence=args.sequence)
+    if getattr(args, "poses", None):
+        from egograph.poses.refine import apply_poses
+
+        rec = apply_poses(rec, args.poses)
+    return rec
+
+
+def _add_poses_arg(p: argparse.ArgumentParser) -> None:
+    p.add_argument("--poses", type=Path, help="use refined poses (a folder from `egograph refine`) instead of the "
+                                              "recording's")
 
 
 # ------------------------------------------------------------------ sub-commands
@@ -411,6 +421,7 @@ def build_parser() -> argparse.ArgumentParser:
 
     s = sub.add_parser("lift", help="lift 2D detections to 3D observations")
     _add_rec_args(s)
+    _add_poses_arg(s)
     s.add_argument("--detections", required=True, help="folder of per-frame detection files, or a set name (svoe, mvpe)")
     s.add_argument("--out", required=True, type=Path, help="observations file (.npz)")
     s.add_argument("--lift", choices=["reference", "robust"], help="lifting mode (default from config: robust)")
@@ -421,6 +432,7 @@ def build_parser() -> argparse.ArgumentParser:
 
     s = sub.add_parser("track", help="track instances; writes per-frame results (instance x y z score)")
     _add_rec_args(s)
+    _add_poses_arg(s)
     s.add_argument("--tracker", required=True, help="graph | graph-causal | memory | kf")
     s.add_argument("--intervals", type=Path, help="graph trackers: intervals JSON (default: RESULTS.intervals.json)")
     s.add_argument("--detections", default="svoe", help="folder of per-frame detection files, or a set name (svoe, mvpe)")
@@ -434,6 +446,7 @@ def build_parser() -> argparse.ArgumentParser:
 
     s = sub.add_parser("regt", help="re-estimate the annotated 3D centres from the 2D box annotations; audit them")
     _add_rec_args(s)
+    _add_poses_arg(s)
     s.add_argument("--out", required=True, type=Path,
                    help="folder for 3d_center_annot.txt (re-estimated), regt.json (covariances) and audit.md")
     s.add_argument("--lift", choices=["reference", "robust"])

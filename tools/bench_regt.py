@@ -31,6 +31,7 @@ from egograph.geometry.lift import lift_recording  # noqa: E402
 from egograph.geometry.observations import Observations  # noqa: E402
 from egograph.io.annotations import load_annotations  # noqa: E402
 from egograph.pipeline import open_recording  # noqa: E402
+from egograph.poses.refine import apply_poses  # noqa: E402
 from egograph.settings import EgographConfig  # noqa: E402
 from egograph.track.regt import box_detections, reestimate_centres  # noqa: E402
 
@@ -46,6 +47,7 @@ def main() -> None:
     ap.add_argument("--seed", type=int, default=0, help="seed of the choice and direction of the shifts")
     ap.add_argument("--draws", type=int, default=20, help="independent random shift draws per recording")
     ap.add_argument("--set", dest="overrides", action="append", default=[])
+    ap.add_argument("--poses", help="refined poses per recording: a folder pattern with {seed}")
     args = ap.parse_args()
     cfg = load_config(EgographConfig, REPO / "configs" / "default.yaml", args.overrides)
     rng = np.random.default_rng(args.seed)
@@ -53,10 +55,15 @@ def main() -> None:
     shifted_flags, clean_flags = [], []
     no_view = 0
     t_lift = t_solve = 0.0
-    for root in benchmark_set(args.seeds, args.frames, cache=DEFAULT_CACHE):
+    for seed, root in zip(args.seeds, benchmark_set(args.seeds, args.frames, cache=DEFAULT_CACHE)):
         rec = open_recording(root, cfg)
+        key = [to_dict(cfg.lift), to_dict(cfg.io)]
+        if args.poses:
+            poses = Path(args.poses.format(seed=seed))
+            rec = apply_poses(rec, poses)
+            key.append(hashlib.sha256((poses / "pv_pose.json").read_bytes()).hexdigest())
         ann = load_annotations(rec.annotation_dir)
-        blob = json.dumps([to_dict(cfg.lift), to_dict(cfg.io)], sort_keys=True)
+        blob = json.dumps(key, sort_keys=True)
         path = root / "observations" / f"boxes_{hashlib.sha256(blob.encode()).hexdigest()[:12]}.npz"
         t0 = time.perf_counter()
         if path.exists():

@@ -34,6 +34,7 @@ from egograph.eval.report import EvalReport, comparison_table, plot_pr  # noqa: 
 from egograph.geometry.lift import synth_lift_errors  # noqa: E402
 from egograph.geometry.observations import Observations  # noqa: E402
 from egograph.io.atomic import atomic_write_text  # noqa: E402
+from egograph.poses.refine import apply_poses  # noqa: E402
 from egograph.pipeline import (  # noqa: E402
     GRAPH_TRACKERS, evaluate, lift, open_recording, track, track_graph, write_results,
 )
@@ -50,10 +51,13 @@ SMOOTHED = ("memory", "kf")  # trackers whose per-frame output also gets the "+g
 MODES = ("reference", "robust")
 
 
-def cache_key(root: Path, cfg: EgographConfig) -> str:
-    """Observations depend on the detections (front-end config) and the lifting config."""
+def cache_key(root: Path, cfg: EgographConfig, poses: Path | None = None) -> str:
+    """Observations depend on the detections (front-end config), the lifting config and the poses."""
     meta = json.loads((root / "recording.json").read_text())
-    blob = json.dumps([meta["config"]["detections"], to_dict(cfg.lift), to_dict(cfg.io)], sort_keys=True)
+    parts = [meta["config"]["detections"], to_dict(cfg.lift), to_dict(cfg.io)]
+    if poses is not None:
+        parts.append(hashlib.sha256((poses / "pv_pose.json").read_bytes()).hexdigest())
+    blob = json.dumps(parts, sort_keys=True)
     return hashlib.sha256(blob.encode()).hexdigest()[:12]
 
 
@@ -67,6 +71,8 @@ def main() -> None:
     ap.add_argument("--cache", type=Path, default=DEFAULT_CACHE)
     ap.add_argument("--out", type=Path, default=REPO / ".cache" / "bench_trackers")
     ap.add_argument("--relift", action="store_true", help="ignore cached observations")
+    ap.add_argument("--poses", help="refined poses per recording instead of the reported ones: a folder pattern "
+                                    "with {seed}, e.g. .cache/bench/refined/f3000/seed{seed}/plus_mesh")
     ap.add_argument("--trackers", nargs="+", default=list(TRACKERS))
     ap.add_argument("--modes", nargs="+", default=list(MODES), help="lifting modes")
     ap.add_argument("--no-oracle", dest="trackers_extra", action="store_const", const=(), default=("oracle",),
@@ -79,13 +85,16 @@ def main() -> None:
     extras: dict[tuple[str, str], dict] = {}
     lift_stats: dict[tuple[str, str], dict] = {}
     timing: dict[str, float] = {}
-    for root in roots:
+    for seed, root in zip(args.seeds, roots):
         rec = open_recording(root, cfg)
+        poses = Path(args.poses.format(seed=seed)) if args.poses else None
+        if poses is not None:
+            rec = apply_poses(rec, poses)
         seq = root.name
         for det_set in ("svoe", "mvpe"):
             for mode in args.modes:
                 cfg.lift.mode = mode
-                obs_path = root / "observations" / f"{det_set}_{mode}_{cache_key(root, cfg)}.npz"
+                obs_path = root / "observations" / f"{det_set}_{mode}_{cache_key(root, cfg, poses)}.npz"
                 t0 = time.perf_counter()
                 if obs_path.exists() and not args.relift:
                     obs = Observations.load(obs_path)
