@@ -11,7 +11,6 @@ when the recording has one, else ``--reference`` (a folder with ``pv_pose.json``
 
 from __future__ import annotations
 
-import argparse
 import json
 from pathlib import Path
 
@@ -57,17 +56,9 @@ def _open(args, cfg):
 
 
 def _show(cfg) -> None:
-    from rich.table import Table
+    from egograph.cli import _show_config
 
-    from egograph.cli import _console
-    from egograph.config import describe
-
-    t = Table(title="configuration")
-    for col in ("knob", "value", "meaning"):
-        t.add_column(col)
-    for key, value, doc in describe(cfg):
-        t.add_row(key, repr(value), doc)
-    _console().print(t)
+    _show_config(cfg)
 
 
 def cmd_refine(args) -> int:

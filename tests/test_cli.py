@@ -2,8 +2,6 @@
 
 import json
 
-import pytest
-
 from egograph.cli import main
 from egograph.io.recording import Recording
 

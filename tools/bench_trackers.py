@@ -36,7 +36,7 @@ from egograph.geometry.observations import Observations  # noqa: E402
 from egograph.io.atomic import atomic_write_text  # noqa: E402
 from egograph.poses.refine import apply_poses  # noqa: E402
 from egograph.pipeline import (  # noqa: E402
-    GRAPH_TRACKERS, evaluate, lift, open_recording, track, track_graph, write_results,
+    GRAPH_TRACKERS, lift, open_recording, track, track_graph,
 )
 from graph_extras import observable_intervals, oracle, print_graph_targets, score, smooth_results  # noqa: E402
 from egograph.settings import EgographConfig  # noqa: E402

@@ -28,7 +28,7 @@ import numpy as np
 from egograph.geometry.hl2ss import invert_rigid
 from egograph.io.errors import InputError
 from egograph.poses.config import RefineConfig
-from egograph.poses.constraints import Constraints, invert_columns, pv_columns, sigmas
+from egograph.poses.constraints import Constraints, pv_columns, sigmas
 
 SOURCES = ("hololens", "icp", "mesh", "colmap")
 

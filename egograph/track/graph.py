@@ -44,7 +44,7 @@ import numpy as np
 from egograph.config import knob, section
 from egograph.geometry.observations import Observations
 from egograph.track.detection_factor import (
-    DetectionNoiseConfig, add_detection_factors, detection_covariances, mahalanobis2, robust,
+    DetectionNoiseConfig, add_detection_factors, detection_covariances, mahalanobis2,
 )
 from egograph.track.intervals import PositionInterval, per_frame_predictions
 from egograph.track.negative import NegativeConfig
