@@ -258,9 +258,8 @@ def cmd_regt(args) -> int:
 def cmd_smooth(args) -> int:
     from egograph.io.detections import read_results_dir
     from egograph.pipeline import write_results
-    from egograph.track.graph import graph_tracker
     from egograph.track.intervals import write_intervals_json
-    from egograph.track.smooth import predictions_to_observations
+    from egograph.track.smooth import smooth_predictions
 
     cfg = _pipeline_config(args)
     if args.show_config:
@@ -268,17 +267,15 @@ def cmd_smooth(args) -> int:
         return 0
     rec = _open(args, cfg)
     per_frame = read_results_dir(args.results, rec.timestamps)
-    obs = predictions_to_observations(per_frame, rec.timestamps, rec.pv_poses, rec.pv_valid)
-    cfg.graph.score_threshold = 0.0  # the other tracker already thresholded its detections
-    cfg.graph.alias_rounds = 0
-    result = graph_tracker(obs, rec.timestamps, cfg.graph, causal=args.causal, progress=not args.quiet)
+    result = smooth_predictions(rec, per_frame, cfg.graph, causal=args.causal, progress=not args.quiet)
     result.metadata["smoothed"] = str(args.results)
     write_results(args.out, rec, result.per_frame)
     ipath = args.intervals or _sibling(args.out, ".intervals.json")
     write_intervals_json(ipath, result.intervals, result.metadata)
     con = _console()
     _print_intervals(con, result.intervals, rec, result.metadata)
-    con.print(f"smoothed {len(obs)} predictions of {args.results} -> {args.out}, intervals -> {ipath}")
+    con.print(f"smoothed {result.metadata['n_observations']} predictions of {args.results} -> {args.out}, "
+              f"intervals -> {ipath}")
     if args.eval and rec.annotation_dir is not None:
         from egograph.pipeline import evaluate
 

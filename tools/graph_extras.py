@@ -5,7 +5,6 @@ the issue's target ratios.
 
 from __future__ import annotations
 
-import dataclasses
 import hashlib
 import json
 from pathlib import Path
@@ -21,10 +20,9 @@ from egograph.geometry.observations import Observations
 from egograph.io.annotations import Box
 from egograph.io.detections import Detection
 from egograph.pipeline import evaluate, write_results
-from egograph.track.detection_factor import detection_covariances
-from egograph.track.graph import graph_tracker, robust_point
+from egograph.track.graph import fixed_interval_estimate
 from egograph.track.intervals import PositionInterval, per_frame_predictions
-from egograph.track.smooth import predictions_to_observations
+from egograph.track.smooth import smooth_predictions
 
 NEES_MATCH_M = 0.25  # intervals farther than this from their GT are wrong places, not covariance failures
 
@@ -89,9 +87,7 @@ def score(reports: dict, extras: dict, det_set: str, name: str, rec, res: Path, 
 
 def smooth_results(rec, per_frame: dict, cfg):
     """The "+graph" row: another tracker's per-frame output smoothed into intervals."""
-    obs = predictions_to_observations(per_frame, rec.timestamps, rec.pv_poses, rec.pv_valid)
-    g = dataclasses.replace(cfg.graph, score_threshold=0.0, alias_rounds=0)
-    return graph_tracker(obs, rec.timestamps, g)
+    return smooth_predictions(rec, per_frame, cfg.graph)
 
 
 _ORACLE: dict[str, tuple] = {}
@@ -123,9 +119,7 @@ def oracle(rec, root: Path, cfg, det_set: str) -> tuple[dict, list[PositionInter
                                   & (obs.timestamps <= g.t_end))
             if not len(rows):
                 continue
-            cov = detection_covariances(obs.world[rows], obs.camera[rows], cfg.graph.noise)
-            xyz, c = robust_point(obs.world[rows], cov, cfg.graph)
-            c = c + cfg.graph.covariance_floor_m**2 * np.eye(3)
+            xyz, c = fixed_interval_estimate(obs.world[rows], obs.camera[rows], cfg.graph)
             intervals.append(PositionInterval(g.instance, g.t_start, g.t_end, tuple(map(float, xyz)), c.tolist(),
                                               len(rows), 1.0))
         _ORACLE[key] = (per_frame_predictions(intervals, ts), intervals)

@@ -281,18 +281,25 @@ class _Context:
     raycaster: object | None = None  # open3d.t.geometry.RaycastingScene of the HoloLens mesh
 
 
+def mesh_scene(mesh):
+    """An Open3D ``RaycastingScene`` of a legacy triangle mesh (the HoloLens scene mesh, world
+    frame), or None without a mesh or triangles."""
+    if mesh is None or len(mesh.triangles) == 0:
+        return None
+    import open3d as o3d
+
+    scene = o3d.t.geometry.RaycastingScene()
+    scene.add_triangles(o3d.t.geometry.TriangleMesh.from_legacy(mesh))
+    return scene
+
+
 def _mesh_raycaster(rec, report: LiftReport):
     """A RaycastingScene of the recording's mesh (built once per recording), or None with a note."""
     # An unreadable mesh (or no open3d) must not stop the lift; it only loses the unwrapping.
     try:
-        mesh = rec.mesh()
-        if mesh is None or len(mesh.triangles) == 0:
+        scene = mesh_scene(rec.mesh())
+        if scene is None:
             report.notes.append("no mesh; alias taken as read (k = 0)")
-            return None
-        import open3d as o3d
-
-        scene = o3d.t.geometry.RaycastingScene()
-        scene.add_triangles(o3d.t.geometry.TriangleMesh.from_legacy(mesh))
         return scene
     except (ImportError, ValueError, OSError, RuntimeError) as exc:
         report.notes.append(f"mesh unusable ({exc}); alias taken as read (k = 0)")

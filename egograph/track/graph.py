@@ -251,6 +251,18 @@ def robust_point(world: np.ndarray, cov: np.ndarray, cfg: GraphConfig,
     return xyz, np.asarray(covariance)
 
 
+def with_floor(covariance: np.ndarray, cfg: GraphConfig) -> np.ndarray:
+    """A stand's reported covariance: its marginal plus ``covariance_floor_m`` squared (m^2)."""
+    return np.asarray(covariance) + cfg.covariance_floor_m**2 * np.eye(3)
+
+
+def fixed_interval_estimate(world: np.ndarray, camera: np.ndarray, cfg: GraphConfig) -> tuple[np.ndarray, np.ndarray]:
+    """Position (metres) and reported covariance (m^2) of one interval fixed in time, from its
+    detections ``world`` seen from ``camera`` (world frame): ``regt`` and the benchmark oracle."""
+    xyz, c = robust_point(world, detection_covariances(world, camera, cfg.noise), cfg)
+    return xyz, with_floor(c, cfg)
+
+
 def make_segment(rows: np.ndarray, world: np.ndarray, cov: np.ndarray, cfg: GraphConfig,
                  start: np.ndarray | None = None, camera: np.ndarray | None = None,
                  range_m: np.ndarray | None = None) -> Segment:
@@ -261,9 +273,14 @@ def make_segment(rows: np.ndarray, world: np.ndarray, cov: np.ndarray, cfg: Grap
     seg = Segment(rows, xyz, c, inl)
     in_hand = camera is not None and range_m is not None and moves_with_camera(
         world[rows], camera[rows], range_m[rows], cfg)
-    seg.stationary = (seg.n_inliers >= cfg.min_observations and seg.n_inliers >= cfg.min_inlier_share * len(rows)
-                      and not in_hand)
+    seg.stationary = is_stand(seg, in_hand, cfg)
     return seg
+
+
+def is_stand(seg: Segment, in_hand: bool, cfg: GraphConfig) -> bool:
+    """Enough inliers, a large enough inlier share, and not an object moving with the head."""
+    return (seg.n_inliers >= cfg.min_observations and seg.n_inliers >= cfg.min_inlier_share * len(seg.rows)
+            and not in_hand)
 
 
 def moves_with_camera(world: np.ndarray, camera: np.ndarray, range_m: np.ndarray, cfg: GraphConfig) -> bool:
@@ -477,7 +494,7 @@ def intervals_from_segments(instance: int, segs: list[Segment], t_frames: np.nda
             if gone is not None:
                 end, ended_by = gone - 1, "negative"
         end = max(end, last)
-        cov = seg.covariance + cfg.covariance_floor_m**2 * np.eye(3)
+        cov = with_floor(seg.covariance, cfg)
         out.append(PositionInterval(
             instance=int(instance), t_start=int(t_frames[start]), t_end=int(t_frames[end]),
             xyz=tuple(float(v) for v in seg.xyz), covariance=cov.tolist(), n_observations=seg.n_inliers,
@@ -628,9 +645,7 @@ def _stand_around(xyz: np.ndarray, rows: np.ndarray, world: np.ndarray, cov: np.
         xyz = c @ np.einsum("mij,mj->i", info[rows[inl]], world[rows[inl]])
         inl = mahalanobis2(world[rows], xyz, cov[rows]) <= cfg.inlier_chi2
     seg = Segment(rows, xyz, c, inl)
-    in_hand = moves_with_camera(world[rows], obs.camera[rows], obs.range_m[rows], cfg)
-    seg.stationary = (seg.n_inliers >= cfg.min_observations and seg.n_inliers >= cfg.min_inlier_share * len(rows)
-                      and not in_hand)
+    seg.stationary = is_stand(seg, moves_with_camera(world[rows], obs.camera[rows], obs.range_m[rows], cfg), cfg)
     return seg
 
 
@@ -652,7 +667,7 @@ def _causal_pieces(instance: int, reports: list, frames: np.ndarray, t_frames: n
                 f1, ended_by = gone - 1, "negative"
         if f1 < f0:
             continue
-        c = seg.covariance + cfg.covariance_floor_m**2 * np.eye(3)
+        c = with_floor(seg.covariance, cfg)
         out.append(PositionInterval(
             instance=int(instance), t_start=int(t_frames[f0]), t_end=int(t_frames[f1]),
             xyz=tuple(float(v) for v in seg.xyz), covariance=c.tolist(), n_observations=seg.n_inliers,

@@ -38,6 +38,7 @@ from egograph.config import knob
 from egograph.geometry.hl2ss import (
     ahat_project, ahat_to_world_matrix, invert_rigid, pose_validity, pv_project, transform_points,
 )
+from egograph.geometry.lift import mesh_scene
 from egograph.geometry.observations import Observations
 
 
@@ -71,7 +72,7 @@ class NegativeEvidence:
         self.dirs = rays / np.linalg.norm(rays, axis=-1, keepdims=True)  # unit rays, AHAT camera
         self.ahat_shape = uv2xy.shape[:2]
         self.pv_shape = tuple(rec.pv.shape)
-        self.scene = _raycaster(rec)
+        self.scene = mesh_scene(rec.mesh())
         keep = obs.valid & (np.asarray(obs.score, np.float32) >= np.float32(score_threshold))
         self.det = {}
         for inst in np.unique(obs.instance[keep]):
@@ -183,18 +184,6 @@ class NegativeEvidence:
 def _signed(a: np.ndarray, b: float, alias: float) -> np.ndarray:
     """``a - b`` modulo the alias distance, in ``[-alias/2, alias/2)`` (metres)."""
     return np.mod(np.asarray(a) - b + alias / 2, alias) - alias / 2
-
-
-def _raycaster(rec):
-    """Open3D RaycastingScene of the recording's HoloLens mesh, or None without a mesh."""
-    mesh = rec.mesh()
-    if mesh is None or len(mesh.triangles) == 0:
-        return None
-    import open3d as o3d
-
-    scene = o3d.t.geometry.RaycastingScene()
-    scene.add_triangles(o3d.t.geometry.TriangleMesh.from_legacy(mesh))
-    return scene
 
 
 def _cast(scene, origin: np.ndarray, dirs: np.ndarray) -> np.ndarray:

@@ -25,8 +25,7 @@ from egograph.config import knob
 from egograph.geometry.observations import Observations
 from egograph.io.annotations import Annotations, CenterAnnotation
 from egograph.io.detections import Detection
-from egograph.track.detection_factor import detection_covariances
-from egograph.track.graph import GraphConfig, robust_point
+from egograph.track.graph import GraphConfig, fixed_interval_estimate
 
 
 @dataclass
@@ -75,9 +74,7 @@ def reestimate_centres(ann: Annotations, obs: Observations, cfg: GraphConfig, re
         est = Reestimate(mi.instance, mi.t_start, mi.t_end, loc, None, None, len(rows),
                          given.get((mi.instance, mi.t_start, mi.t_end)))
         if len(rows):
-            cov = detection_covariances(obs.world[rows], obs.camera[rows], cfg.noise)
-            xyz, c = robust_point(obs.world[rows], cov, cfg)
-            c = c + cfg.covariance_floor_m**2 * np.eye(3)
+            xyz, c = fixed_interval_estimate(obs.world[rows], obs.camera[rows], cfg)
             est.xyz, est.covariance = tuple(float(v) for v in xyz), c.tolist()
             if est.given is not None:
                 d = np.asarray(est.given) - xyz

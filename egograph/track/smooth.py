@@ -13,6 +13,7 @@ time of the first prediction at a new place.
 
 from __future__ import annotations
 
+import dataclasses
 from typing import Mapping, Sequence
 
 import numpy as np
@@ -42,3 +43,15 @@ def predictions_to_observations(per_frame: Mapping[int, Sequence[Prediction]], t
         range_m=np.linalg.norm(world - cam, axis=1).astype(np.float32), candidates=world[:, None, :].copy(),
         chosen=np.zeros(m, np.int8), n_pixels=np.zeros(m, np.int32),
     )
+
+
+def smooth_predictions(rec, per_frame: Mapping[int, Sequence[Prediction]], cfg, causal: bool = False,
+                       progress: bool = False):
+    """Another tracker's per-frame predictions on recording ``rec`` -> the graph's
+    :class:`~egograph.track.graph.GraphResult`. Every prediction is used (``score_threshold``
+    0: the other tracker already thresholded its detections) and there are no alias candidates."""
+    from egograph.track.graph import graph_tracker
+
+    obs = predictions_to_observations(per_frame, rec.timestamps, rec.pv_poses, rec.pv_valid)
+    g = dataclasses.replace(cfg, score_threshold=0.0, alias_rounds=0)
+    return graph_tracker(obs, rec.timestamps, g, causal=causal, progress=progress)
