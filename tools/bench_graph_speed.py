@@ -15,7 +15,6 @@ baseline on the same observations as a same-run reference.
 from __future__ import annotations
 
 import argparse
-import glob
 import sys
 import time
 from pathlib import Path
@@ -23,7 +22,11 @@ from pathlib import Path
 import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
+from bench_trackers import REPO, cache_key  # noqa: E402
 from benchset import DEFAULT_CACHE  # noqa: E402
+
+from egograph.config import load_config  # noqa: E402
+from egograph.settings import EgographConfig  # noqa: E402
 
 from egograph.geometry.observations import Observations  # noqa: E402
 from egograph.track.baselines import BaselineConfig, kalman_tracker  # noqa: E402
@@ -36,12 +39,14 @@ FRAME = 333_333
 def long_stream(n_frames: int, det_set: str, cache: Path) -> tuple[Observations, np.ndarray]:
     """Benchmark observations laid end to end to ``n_frames`` frames (ticks on a 30 fps grid)."""
     parts, offset, k = [], 0, 0
+    cfg = load_config(EgographConfig, REPO / "configs" / "default.yaml")
+    cfg.lift.mode = "robust"
     files = []
     for seed in range(1, 6):
-        found = sorted(glob.glob(str(cache / "f3000" / f"seed{seed}" / "observations" / f"{det_set}_robust_*.npz")),
-                       key=lambda p: Path(p).stat().st_mtime)
-        if found:
-            files.append(found[-1])
+        root = cache / "f3000" / f"seed{seed}"
+        path = root / "observations" / f"{det_set}_robust_{cache_key(root, cfg)}.npz" if root.is_dir() else None
+        if path is not None and path.exists():  # reported poses, the default config
+            files.append(path)
     if not files:
         raise SystemExit(f"no cached robust observations under {cache}; run tools/bench_trackers.py first")
     while offset < n_frames:
