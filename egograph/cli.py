@@ -93,6 +93,29 @@ def _add_poses_arg(p: argparse.ArgumentParser) -> None:
                                               "recording's")
 
 
+def _add_joint_args(p: argparse.ArgumentParser, default_out: str) -> None:
+    p.add_argument("--joint-poses", action="store_true",
+                   help="joint mode: solve the PV poses together with the still objects' landmarks and the "
+                        "refinement factors (refine.* config), then estimate again with the corrected poses")
+    p.add_argument("--poses-out", type=Path, help=f"joint mode: where to write the solved poses (default {default_out})")
+
+
+def _write_joint_poses(con, rec, jp, cfg, out: Path) -> None:
+    import numpy as np
+
+    from egograph.poses.refine import RefineResult, write_refined
+
+    ok = np.isfinite(jp.pv_poses).all(axis=(1, 2))
+    rr = RefineResult(rec.timestamps.copy(), jp.pv_poses, jp.depth_poses, ok, jp.depth_valid,
+                      dict(jp.report.get("refinement_seconds", {})), dict(jp.report.get("refinement_factors", {})),
+                      {"joint": {k: v for k, v in jp.report.items() if k not in ("refinement_seconds", "change")}},
+                      jp.report.get("change", {}))
+    write_refined(rr, out, rec, cfg.refine, {"mode": "joint (poses + object landmarks)", "joint": cfg.joint})
+    ch = jp.report.get("change", {})
+    con.print(f"joint poses: {jp.report['stands']} stands, {jp.report['detection_factors']} detection factors; poses "
+              f"moved {1000 * ch.get('trans_rms_m', 0):.1f} mm / {ch.get('rot_rms_deg', 0):.3f} deg RMS -> {out}")
+
+
 # ------------------------------------------------------------------ sub-commands
 
 def cmd_synth(args) -> int:
@@ -174,8 +197,16 @@ def cmd_track(args) -> int:
         obs, report = lift(rec, args.detections, cfg, progress=not args.quiet)
         con.print(report.summary())
     t1 = time.perf_counter()
-    intervals_path = None
-    if args.tracker in GRAPH_TRACKERS:
+    intervals_path = jp = None
+    if args.joint_poses and args.tracker != "graph":
+        raise ConfigError(f"--joint-poses needs --tracker graph (offline), not {args.tracker}")
+    if args.joint_poses:
+        from egograph.pipeline import track_graph_joint
+
+        result, jp = track_graph_joint(rec, obs, cfg, progress=not args.quiet)
+        per_frame = result.per_frame
+        intervals_path = args.intervals or _sibling(args.out, ".intervals.json")
+    elif args.tracker in GRAPH_TRACKERS:
         result = track_graph(rec, obs, cfg, causal=args.tracker == "graph-causal", progress=not args.quiet)
         per_frame = result.per_frame
         intervals_path = args.intervals or _sibling(args.out, ".intervals.json")
@@ -192,6 +223,8 @@ def cmd_track(args) -> int:
         write_intervals_json(intervals_path, result.intervals, result.metadata)
         _print_intervals(con, result.intervals, rec, result.metadata)
         con.print(f"intervals -> {intervals_path}")
+    if jp is not None:
+        _write_joint_poses(con, rec, jp, cfg, args.poses_out or _sibling(args.out, ".poses"))
     if args.eval and rec.annotation_dir is not None:
         evaluate(rec, args.out).print(con)
     return 0
@@ -224,8 +257,8 @@ def cmd_regt(args) -> int:
     from egograph.io.annotations import load_annotations, write_centers
     from egograph.io.atomic import atomic_write_text
     from egograph.io.errors import InputError
-    from egograph.pipeline import n_instances
-    from egograph.track.regt import as_center_annotations, audit_text, box_detections, reestimate_centres
+    from egograph.pipeline import n_instances, regt_estimates
+    from egograph.track.regt import as_center_annotations, audit_text, box_detections
 
     cfg = _lifting_config(args)
     if cfg is None:
@@ -237,7 +270,7 @@ def cmd_regt(args) -> int:
     ann = load_annotations(rec.annotation_dir, box_format=cfg.io.box_format)
     obs, report = lift_recording(rec, box_detections(ann), cfg.lift, progress=not args.quiet,
                                  n_instances=n_instances(rec))
-    est = reestimate_centres(ann, obs, cfg.graph, regt)
+    est, jp = regt_estimates(rec, ann, obs, cfg, joint=args.joint_poses, progress=not args.quiet)
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
     write_centers(out / "3d_center_annot.txt", as_center_annotations(est))
@@ -252,6 +285,8 @@ def cmd_regt(args) -> int:
     print(text)
     con.print(f"re-estimated {sum(e.xyz is not None for e in est)} of {len(est)} intervals -> {out}/3d_center_annot.txt, "
               f"regt.json (covariances), audit.md")
+    if jp is not None:
+        _write_joint_poses(con, rec, jp, cfg, args.poses_out or out / "poses")
     return 0
 
 
@@ -437,6 +472,7 @@ def build_parser() -> argparse.ArgumentParser:
     s.add_argument("--out", required=True, type=Path, help="results folder (one file per PV frame)")
     s.add_argument("--lift", choices=["reference", "robust"])
     s.add_argument("--eval", action="store_true", help="evaluate the results against the annotations")
+    _add_joint_args(s, "RESULTS.poses")
     s.add_argument("--quiet", action="store_true")
     _add_config_args(s, DEFAULT_CONFIG)
     s.set_defaults(func=cmd_track)
@@ -447,6 +483,7 @@ def build_parser() -> argparse.ArgumentParser:
     s.add_argument("--out", required=True, type=Path,
                    help="folder for 3d_center_annot.txt (re-estimated), regt.json (covariances) and audit.md")
     s.add_argument("--lift", choices=["reference", "robust"])
+    _add_joint_args(s, "OUT/poses")
     s.add_argument("--quiet", action="store_true")
     _add_config_args(s, DEFAULT_CONFIG)
     s.set_defaults(func=cmd_regt)

@@ -73,6 +73,48 @@ def track_graph(rec: Recording, obs, cfg: EgographConfig, causal: bool = False, 
     return result
 
 
+def track_graph_joint(rec: Recording, obs, cfg: EgographConfig, progress: bool = False, factors=None):
+    """Offline graph tracker in joint mode (``--joint-poses``): the PV poses become variables of
+    one graph with the refinement factors (``cfg.refine``) and the landmarks of the stands the
+    tracker found; the tracker then runs again on the observations and poses so corrected
+    (``cfg.joint.rounds`` times). Returns ``(GraphResult, JointPoses)``; ``obs`` must be lifted
+    with ``rec``'s poses. ``factors``: the recording's RefinementGraph when already built (with
+    ``refinement_factors(..., confirm_jumps_now=False)``)."""
+    from egograph.track.joint import (joint_poses, move_observations, stands_from_result, unmove_points,
+                                      with_joint_poses, world_corrections)
+
+    result = track_graph(rec, obs, cfg, progress=progress)
+    jp = None
+    corrections = None
+    for _ in range(max(1, cfg.joint.rounds)):
+        stands = stands_from_result(result, cfg.joint.min_inliers)
+        if corrections is not None:  # stands were found on moved observations: back to the reported frame
+            for st in stands:
+                st.world = unmove_points(st.world, st.frames, corrections)
+        jp = joint_poses(rec, stands, cfg.refine, cfg.graph.noise, cfg.joint, progress=progress, factors=factors)
+        factors = jp.factors
+        corrections = world_corrections(rec, jp.pv_poses)
+        result = track_graph(with_joint_poses(rec, jp), move_observations(obs, corrections), cfg, progress=progress)
+    result.metadata["joint_poses"] = {k: v for k, v in jp.report.items() if k != "refinement_seconds"}
+    result.metadata["tracker"] = "graph (joint poses)"
+    return result, jp
+
+
+def regt_estimates(rec: Recording, ann, obs, cfg: EgographConfig, joint: bool = False, progress: bool = False):
+    """``egograph regt``: re-estimated centres of the annotated intervals from the lifted boxes
+    ``obs``; with ``joint`` the poses are first solved together with one landmark per
+    interval (refinement factors + the boxes' inliers). Returns ``(estimates, JointPoses | None)``."""
+    from egograph.track.joint import joint_poses, move_observations, world_corrections
+    from egograph.track.regt import interval_stands, reestimate_centres
+
+    jp = None
+    if joint:
+        stands = interval_stands(ann, obs, cfg.graph, cfg.joint.min_inliers)
+        jp = joint_poses(rec, stands, cfg.refine, cfg.graph.noise, cfg.joint, progress=progress)
+        obs = move_observations(obs, world_corrections(rec, jp.pv_poses))
+    return reestimate_centres(ann, obs, cfg.graph, cfg.regt), jp
+
+
 def track(rec: Recording, tracker: str, obs, cfg: EgographConfig) -> dict:
     """Run a named tracker on observations -> per-frame predictions {ts: [Prediction]}."""
     from egograph.track.baselines import TRACKERS

@@ -15,6 +15,7 @@ from egograph.geometry.lift import LiftConfig
 from egograph.poses.config import RefineConfig
 from egograph.track.baselines import BaselineConfig
 from egograph.track.graph import GraphConfig
+from egograph.track.joint import JointConfig
 from egograph.track.regt import RegtConfig
 
 
@@ -32,4 +33,6 @@ class EgographConfig:
     track: BaselineConfig = section(BaselineConfig, "the paper's baseline trackers (memory, kf)")
     graph: GraphConfig = section(GraphConfig, "the factor-graph tracker (graph, graph-causal), regt and smooth")
     regt: RegtConfig = section(RegtConfig, "ground-truth re-estimation audit")
-    refine: RefineConfig = section(RefineConfig, "pose-graph refinement of the HoloLens poses (egograph refine)")
+    refine: RefineConfig = section(RefineConfig, "pose-graph refinement of the HoloLens poses (egograph refine; "
+                                                 "also the pose factors of --joint-poses)")
+    joint: JointConfig = section(JointConfig, "joint mode: poses and still-object landmarks in one graph (--joint-poses)")

@@ -212,3 +212,26 @@ def test_a_look_alike_carried_far_away_does_not_end_the_stand():
     cfg = GraphConfig(negative_evidence=False, pickup_radius_m=1.0)
     res = graph_tracker(make_obs(rows), stamps(), cfg)
     assert len(res.intervals) == 1 and frames_of(res.intervals[0]) == (0, N - 1)
+
+
+@pytest.mark.parametrize("lo,hi,max_len,pad", [(0, 200, 60, 10), (5, 66, 60, 10), (3, 40, 60, 10), (0, 97, 25, 10)])
+def test_long_windows_are_cut_into_pieces_whose_owned_ranges_partition_them(lo, hi, max_len, pad):
+    from egograph.track.graph import _window_pieces
+
+    pieces = _window_pieces([(lo, hi)], max_len, pad)
+    owned = np.concatenate([np.arange(a, b) for _, _, a, b in pieces])
+    assert np.array_equal(owned, np.arange(lo, hi))
+    for p_lo, p_hi, o_lo, o_hi in pieces:
+        assert p_hi - p_lo <= max_len and p_lo <= o_lo < o_hi <= p_hi
+        assert p_lo == lo or o_lo - p_lo >= pad        # every decision keeps pad chunks of context
+        assert p_hi == hi or p_hi - o_hi >= pad
+
+
+def test_cutting_candidate_windows_keeps_the_intervals():
+    obs = make_obs(scenario(seed=3, twin_share=0.3))
+    whole = graph_tracker(obs, stamps(), GraphConfig(negative_evidence=False, prepass_max_window=10_000))
+    cut = graph_tracker(obs, stamps(), GraphConfig(negative_evidence=False, prepass_max_window=25))
+    assert len(whole.intervals) == len(cut.intervals) >= 2
+    for x, y in zip(whole.intervals, cut.intervals):
+        assert np.linalg.norm(np.subtract(x.xyz, y.xyz)) < 0.01
+        assert abs(frames_of(x)[0] - frames_of(y)[0]) <= 3 and abs(frames_of(x)[1] - frames_of(y)[1]) <= 3

@@ -51,6 +51,17 @@ class RefinementGraph:
     factor_counts: dict[str, int]
     stage_seconds: dict[str, float]
     stats: dict = field(default_factory=dict)
+    initial: np.ndarray | None = None        # (N, 4, 4) column starting PV poses (spike-cleaned)
+    world_initial: np.ndarray | None = None  # (N, 4, 4) column starting world corrections (None without hololens)
+
+    def rebuild(self):
+        """A fresh graph and starting values from the (possibly re-weighted) constraints."""
+        from egograph.poses.graph import build_graph
+
+        valid = np.zeros(len(self.initial), bool)
+        valid[self.frames] = True
+        graph, values, _ = build_graph(self.initial, valid, self.constraints, self.world_initial)
+        return graph, values
 
 
 @dataclass
@@ -162,7 +173,7 @@ def _say(progress, msg: str) -> None:
 
 
 def refinement_factors(rec, cfg: RefineConfig | None = None, progress: bool = False,
-                       initial: np.ndarray | None = None) -> RefinementGraph:
+                       initial: np.ndarray | None = None, confirm_jumps_now: bool = True) -> RefinementGraph:
     """Every refinement factor of ``rec`` as one ``gtsam.NonlinearFactorGraph`` + initial ``gtsam.Values``.
 
     Keys: ``gtsam.symbol('x', i)`` = PV camera -> world ``Pose3`` of frame i (column
@@ -177,7 +188,9 @@ def refinement_factors(rec, cfg: RefineConfig | None = None, progress: bool = Fa
     ``values`` are then that first solution (a better start; the factors are the final
     ones). ``initial`` (N, 4, 4 column) overrides the starting poses of ICP/COLMAP
     (default: reported, spike-cleaned). Add more factors on the ``x`` keys (e.g. object
-    landmarks) and solve with :func:`egograph.poses.graph.solve`.
+    landmarks) and solve with :func:`egograph.poses.graph.solve`. ``confirm_jumps_now=False``
+    leaves the jump candidates loose, for a caller that tests them with more factors
+    (:func:`confirm_jumps` on its own solution, then :meth:`RefinementGraph.rebuild`).
     """
     import gtsam  # noqa: F401  (fail early when missing)
 
@@ -243,7 +256,7 @@ def refinement_factors(rec, cfg: RefineConfig | None = None, progress: bool = Fa
     graph, values, counts = build_graph(pv0, valid, cons, w0)
     times["build"] = time.perf_counter() - t
     drift = [c for c in cons if c.source == "drift"]
-    if cfg.jump_confirm and drift and drift[0].info["loose"].any():
+    if confirm_jumps_now and cfg.jump_confirm and drift and drift[0].info["loose"].any():
         t = time.perf_counter()
         first, _ = solve(graph, values, cfg.max_iterations)
         stats["jumps"] = confirm_jumps(drift[0], first, cfg)
@@ -252,7 +265,8 @@ def refinement_factors(rec, cfg: RefineConfig | None = None, progress: bool = Fa
         times["jump_test"] = time.perf_counter() - t
     from egograph.poses.constraints import ahat_offsets
 
-    return RefinementGraph(graph, values, np.flatnonzero(valid), ahat_offsets(rec), cons, counts, times, stats)
+    return RefinementGraph(graph, values, np.flatnonzero(valid), ahat_offsets(rec), cons, counts, times, stats,
+                           pv0, w0)
 
 
 def confirm_jumps(drift: Constraints, values, cfg: RefineConfig) -> dict:

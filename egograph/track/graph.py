@@ -75,6 +75,9 @@ class GraphConfig:
                                    "zero-motion factor, the rest explicit switches (far fewer Python CustomFactors)")
     prepass_keep: float = knob(0.95, "a boundary whose DCS-implied switch is at least this is clearly still")
     prepass_window: int = knob(10, "each candidate break is solved with this many chunks of the chain either side")
+    prepass_max_window: int = knob(60, "merged windows longer than this many chunks are solved in overlapping pieces "
+                                       "of this length (prepass_window chunks of context at each cut), so the cost "
+                                       "grows linearly with the recording, not with the longest run of candidates")
     break_below: float = knob(0.5, "a switch below this value (0-1) is a motion break")
     min_observations: int = knob(3, "fewest inlier detections a stationary interval needs")
     min_inlier_share: float = knob(0.6, "share of a segment's detections its centre must explain to be stationary")
@@ -405,13 +408,14 @@ def _solve_chain(world, cov, chunk, init, cfg: GraphConfig) -> tuple[np.ndarray,
         # Each candidate break is decided in a local window of the chain (a switch only couples
         # its neighbours), which keeps the Python CustomFactors in small graphs: GTSAM's cost
         # per CustomFactor call grows with the size of the graph it sits in.
-        for lo, hi in _candidate_windows(np.flatnonzero(implied < cfg.prepass_keep) + 1, n, cfg.prepass_window):
+        windows = _candidate_windows(np.flatnonzero(implied < cfg.prepass_keep) + 1, n, cfg.prepass_window)
+        for lo, hi, own_lo, own_hi in _window_pieces(windows, cfg.prepass_max_window, cfg.prepass_window):
             rows = (chunk >= lo) & (chunk < hi)
             kinds = ["still" if implied[k - 1] >= cfg.prepass_keep else "switchable" for k in range(lo + 1, hi)]
             graph, values = instance_graph(world[rows], cov[rows], chunk[rows] - lo, landmarks[lo:hi], cfg, kinds)
             result = solve_lm(graph, values, cfg.max_iterations)
-            landmarks[lo:hi] = landmarks_of(result, hi - lo)
-            for k in range(lo + 1, hi):
+            landmarks[own_lo:own_hi] = landmarks_of(result, hi - lo)[own_lo - lo:own_hi - lo]
+            for k in range(max(own_lo, lo + 1), own_hi):
                 if kinds[k - lo - 1] == "switchable":
                     sw[k - 1] = switch_clipped(result, S(k - lo))
         return landmarks, sw
@@ -432,6 +436,30 @@ def _candidate_windows(boundaries: np.ndarray, n: int, pad: int) -> list[tuple[i
         else:
             out.append([lo, hi])
     return [(lo, hi) for lo, hi in out]
+
+
+def _window_pieces(windows: list[tuple[int, int]], max_len: int, pad: int) -> list[tuple[int, int, int, int]]:
+    """Each window [lo, hi) cut into overlapping pieces of at most ``max_len`` chunks: (piece_lo,
+    piece_hi, own_lo, own_hi). A piece decides only the chunks [own_lo, own_hi) and the
+    boundaries in (own_lo, own_hi) (also own_lo, except at the window's start), at least ``pad``
+    chunks from a cut, so each decision sees ``pad`` chunks of context either side as in an
+    uncut window; the owned ranges partition the window."""
+    out = []
+    step = max(1, max_len - 2 * pad)
+    for lo, hi in windows:
+        if max_len <= 2 * pad or hi - lo <= max_len:
+            out.append((lo, hi, lo, hi))
+            continue
+        s = lo
+        while True:
+            e = min(s + max_len, hi)
+            own_lo = lo if s == lo else s + pad
+            own_hi = hi if e == hi else e - pad
+            out.append((s, e, own_lo, own_hi))
+            if e == hi:
+                break
+            s += step
+    return out
 
 
 def _solve_instance_offline(world, cov, candidates, chunk, cfg: GraphConfig):

@@ -25,7 +25,9 @@ from egograph.config import knob
 from egograph.geometry.observations import Observations
 from egograph.io.annotations import Annotations, CenterAnnotation
 from egograph.io.detections import Detection
+from egograph.track.detection_factor import detection_covariances, mahalanobis2
 from egograph.track.graph import GraphConfig, fixed_interval_estimate
+from egograph.track.joint import Stand
 
 
 @dataclass
@@ -62,15 +64,12 @@ def box_detections(ann: Annotations) -> dict[int, list[Detection]]:
 
 def reestimate_centres(ann: Annotations, obs: Observations, cfg: GraphConfig, regt: RegtConfig) -> list[Reestimate]:
     """One re-estimate per stationary interval of ``ann.motion`` from the lifted boxes ``obs``."""
-    valid = obs.valid
     given = {(c.instance, c.t_start, c.t_end): c.xyz for c in ann.centers}
     count: dict[int, int] = {}
     out = []
-    for mi in sorted(ann.motion, key=lambda m: (m.instance, m.t_start)):
+    for mi, rows in interval_rows(ann, obs):
         loc = count.get(mi.instance, 0)
         count[mi.instance] = loc + 1
-        rows = np.flatnonzero(valid & (obs.instance == mi.instance) & (obs.timestamps >= mi.t_start)
-                              & (obs.timestamps <= mi.t_end))
         est = Reestimate(mi.instance, mi.t_start, mi.t_end, loc, None, None, len(rows),
                          given.get((mi.instance, mi.t_start, mi.t_end)))
         if len(rows):
@@ -82,6 +81,31 @@ def reestimate_centres(ann: Annotations, obs: Observations, cfg: GraphConfig, re
                 est.sigmas = float(np.sqrt(d @ np.linalg.solve(c, d)))
                 est.flagged = est.distance_m > regt.audit_m and est.sigmas > regt.audit_sigma
         out.append(est)
+    return out
+
+
+def interval_rows(ann: Annotations, obs: Observations):
+    """(motion interval, rows of ``obs`` lifted inside it) for every stationary interval, in
+    instance and time order."""
+    valid = obs.valid
+    for mi in sorted(ann.motion, key=lambda m: (m.instance, m.t_start)):
+        rows = np.flatnonzero(valid & (obs.instance == mi.instance) & (obs.timestamps >= mi.t_start)
+                              & (obs.timestamps <= mi.t_end))
+        yield mi, rows
+
+
+def interval_stands(ann: Annotations, obs: Observations, cfg: GraphConfig, min_inliers: int) -> list[Stand]:
+    """The annotated intervals as stands for the joint pose solve: each interval's lifted boxes
+    within ``cfg.inlier_chi2`` of its re-estimate (at least ``min_inliers`` of them)."""
+    out = []
+    for mi, rows in interval_rows(ann, obs):
+        if len(rows) < min_inliers:
+            continue
+        xyz, _ = fixed_interval_estimate(obs.world[rows], obs.camera[rows], cfg)
+        cov = detection_covariances(obs.world[rows], obs.camera[rows], cfg.noise)
+        inl = rows[mahalanobis2(obs.world[rows], xyz, cov) <= cfg.inlier_chi2]
+        if len(inl) >= min_inliers:
+            out.append(Stand(mi.instance, obs.frame[inl].astype(np.int64), obs.world[inl], xyz))
     return out
 
 

@@ -1,0 +1,170 @@
+"""Joint mode (``--joint-poses``): poses and still-object landmarks in one graph."""
+
+from __future__ import annotations
+
+import dataclasses
+import shutil
+
+import numpy as np
+import pytest
+
+from egograph.cli import main
+from egograph.config import load_config
+from egograph.geometry.lift import lift_recording
+from egograph.io.annotations import load_annotations
+from egograph.io.poses import read_pose_json, write_pose_json
+from egograph.pipeline import lift, open_recording, regt_estimates, track_graph, track_graph_joint
+from egograph.poses.evaluate import evaluate_trajectory
+from egograph.poses.refine import hololens_constraints
+from egograph.settings import EgographConfig
+from egograph.track.intervals import read_intervals_json
+from egograph.track.joint import move_observations, unmove_points, world_corrections
+from egograph.track.regt import box_detections, interval_stands
+
+NO_MESH = ["refine.mesh=false"]
+
+
+def _seq(root):
+    return next(p for p in root.iterdir() if (p / "pv_pose.json").is_file())
+
+
+def _with_poses(src, dst, error):
+    """Copy a recording with reported poses ``truth @ error[f]`` (row vectors: a world-frame error)."""
+    shutil.copytree(src, dst)
+    gt = dst / "synth_gt" / _seq(dst).name
+    ts, pv, _ = read_pose_json(gt / "pv_pose.json")
+    _, depth, _ = read_pose_json(gt / "depth_ahat_pose.json")
+    write_pose_json(_seq(dst) / "pv_pose.json", ts, pv @ error(len(ts)))
+    write_pose_json(_seq(dst) / "depth_ahat_pose.json", ts, depth @ error(len(ts)))
+    return dst, pv
+
+
+def _rigid(deg_y: float, t) -> np.ndarray:
+    c, s = np.cos(np.radians(deg_y)), np.sin(np.radians(deg_y))
+    m = np.eye(4)
+    m[:3, :3] = [[c, 0, -s], [0, 1, 0], [s, 0, c]]
+    m[3, :3] = t
+    return m
+
+
+def test_moved_observations_equal_lifting_with_the_corrected_poses_and_round_trip(tiny_rec):
+    cfg = load_config(EgographConfig, None)
+    rec = open_recording(tiny_rec, cfg)
+    obs, _ = lift(rec, "mvpe", cfg, progress=False)
+    # a different world-frame correction per frame
+    rng = np.random.default_rng(0)
+    new_pv = rec.pv_poses @ np.stack([_rigid(a, t) for a, t in zip(rng.uniform(-2, 2, len(rec)),
+                                                                     rng.uniform(-0.1, 0.1, (len(rec), 3)))])
+    W = world_corrections(rec, new_pv)
+    assert np.allclose(rec.pv_poses @ W, new_pv, atol=1e-9)
+    moved = move_observations(obs, W)
+    ok = obs.valid
+    f = obs.frame[ok]
+    # the PV-camera-frame point is unchanged: p_cam = world · inv(pose)
+    cam_before = np.einsum("mi,mij->mj", np.c_[obs.world[ok], np.ones(ok.sum())], np.linalg.inv(rec.pv_poses[f]))
+    cam_after = np.einsum("mi,mij->mj", np.c_[moved.world[ok], np.ones(ok.sum())], np.linalg.inv(new_pv[f]))
+    assert np.abs(cam_before - cam_after).max() < 1e-9
+    # alias candidates keep their spacing along the ray; the range is untouched
+    spacing = lambda o: np.linalg.norm(np.diff(o.candidates[ok][:, :2], axis=1), axis=2)  # noqa: E731
+    fin = np.isfinite(spacing(obs)).ravel()
+    assert np.allclose(spacing(obs).ravel()[fin], spacing(moved).ravel()[fin], atol=1e-9)
+    assert np.array_equal(moved.range_m, obs.range_m)
+    assert np.abs(unmove_points(moved.world[ok], f, W) - obs.world[ok]).max() < 1e-9
+
+
+@pytest.fixture(scope="module")
+def jump_rec(tiny_rec, tmp_path_factory):
+    """The tiny recording with the true poses and one relocalisation jump (8 cm, 1 deg) at the end of
+    a fast head turn inside an annotated stand, so the stand's object is seen before and after it."""
+    cfg = load_config(EgographConfig, None, NO_MESH)
+    rec = open_recording(tiny_rec, cfg)
+    ann = load_annotations(rec.annotation_dir)
+    obs, _ = lift_recording(rec, box_detections(ann), cfg.lift, progress=False)
+    drift = next(c for c in hololens_constraints(rec, cfg.refine) if c.source == "drift")
+    candidates = drift.j[drift.info["loose"]]
+    stands = interval_stands(ann, obs, cfg.graph, 3)
+    # a jump candidate with at least 3 views of one stand on either side
+    k = next(int(c) for c in candidates for st in stands
+             if (st.frames < c).sum() >= 3 and (st.frames >= c).sum() >= 3)
+
+    def error(n):
+        e = np.tile(np.eye(4), (n, 1, 1))
+        e[k:] = _rigid(1.0, [0.08, 0.0, 0.03])
+        return e
+
+    return _with_poses(tiny_rec, tmp_path_factory.mktemp("joint_jump") / "rec", error)
+
+
+def test_regt_joint_poses_find_the_jump_the_pose_graph_alone_cannot(jump_rec):
+    root, truth = jump_rec
+    cfg = load_config(EgographConfig, None, [*NO_MESH, "joint.noise_scale=1"])
+    rec = open_recording(root, cfg)
+    ann = load_annotations(rec.annotation_dir)
+    obs, _ = lift_recording(rec, box_detections(ann), cfg.lift, progress=False)
+    before = evaluate_trajectory(rec.pv_poses, truth)
+    # without landmarks (no stands) the HoloLens model has no evidence of the jump
+    _, alone = regt_estimates(rec, dataclasses.replace(ann, motion=[]), obs, cfg, joint=True)
+    assert alone.report["jumps"]["confirmed"] == 0
+    assert evaluate_trajectory(alone.pv_poses, truth).ate_rmse_aligned_m > 0.8 * before.ate_rmse_aligned_m
+    est, jp = regt_estimates(rec, ann, obs, cfg, joint=True)
+    after = evaluate_trajectory(jp.pv_poses, truth)
+    assert jp.report["jumps"]["confirmed"] >= 1
+    assert before.ate_rmse_aligned_m > 0.04
+    assert after.ate_rmse_aligned_m <= 0.5 * before.ate_rmse_aligned_m
+    assert len(est) == len(ann.motion)
+
+
+@pytest.fixture(scope="module")
+def exact_rec(tiny_rec, tmp_path_factory):
+    return _with_poses(tiny_rec, tmp_path_factory.mktemp("joint_exact") / "rec", lambda n: np.tile(np.eye(4), (n, 1, 1)))
+
+
+def test_joint_mode_does_no_harm_with_exact_poses(exact_rec):
+    root, truth = exact_rec
+    cfg = load_config(EgographConfig, None, NO_MESH)
+    rec = open_recording(root, cfg)
+    obs, _ = lift(rec, "mvpe", cfg, progress=False)
+    plain = track_graph(rec, obs, cfg)
+    joint, jp = track_graph_joint(rec, obs, cfg)
+    assert jp.report["stands"] >= 1 and jp.report["detection_factors"] >= 10
+    assert jp.report["change"]["trans_rms_m"] < 0.005 and jp.report["change"]["rot_rms_deg"] < 0.2
+    assert evaluate_trajectory(jp.pv_poses, truth).ate_rmse_m < 0.005
+    assert [(iv.instance, iv.t_start, iv.t_end) for iv in joint.intervals] == \
+        [(iv.instance, iv.t_start, iv.t_end) for iv in plain.intervals]
+    assert np.abs(np.array([iv.xyz for iv in joint.intervals]) - np.array([iv.xyz for iv in plain.intervals])).max() < 0.01
+    assert joint.metadata["joint_poses"]["stands"] == jp.report["stands"]
+
+
+def test_cli_track_joint_poses_writes_results_intervals_and_poses(tiny_rec, tmp_path, capsys):
+    out = tmp_path / "res"
+    code = main(["track", str(tiny_rec), "--tracker", "graph", "--detections", "mvpe", "--out", str(out),
+                 "--joint-poses", "--quiet", "--set", "refine.mesh=false"])
+    assert code == 0
+    rec = open_recording(tiny_rec, load_config(EgographConfig, None))
+    assert len(list(out.iterdir())) == len(rec)
+    intervals, meta = read_intervals_json(tmp_path / "res.intervals.json")
+    assert meta["tracker"] == "graph (joint poses)" and intervals
+    ts, pv, ok = read_pose_json(tmp_path / "res.poses" / "pv_pose.json")
+    assert np.array_equal(ts, rec.timestamps) and ok.all()
+    assert (tmp_path / "res.poses" / "pv_pose.tum").is_file()
+    assert "joint poses:" in capsys.readouterr().out
+
+
+def test_cli_joint_poses_needs_the_offline_graph(tiny_rec, tmp_path, capsys):
+    code = main(["track", str(tiny_rec), "--tracker", "kf", "--out", str(tmp_path / "r"), "--joint-poses"])
+    assert code == 2
+    assert "--joint-poses needs --tracker graph" in capsys.readouterr().err
+
+
+def test_cli_regt_joint_poses_writes_centres_and_poses(tiny_rec, tmp_path):
+    out = tmp_path / "regt"
+    assert main(["regt", str(tiny_rec), "--out", str(out), "--joint-poses", "--quiet",
+                 "--set", "refine.mesh=false"]) == 0
+    from egograph.io.annotations import read_centers
+
+    rec = open_recording(tiny_rec, load_config(EgographConfig, None))
+    ann = load_annotations(rec.annotation_dir)
+    assert len(read_centers(out / "3d_center_annot.txt")) == len(ann.motion)
+    ts, _, ok = read_pose_json(out / "poses" / "pv_pose.json")
+    assert np.array_equal(ts, rec.timestamps) and ok.all()
+    assert "joint" in (out / "poses" / "report.json").read_text()
