@@ -80,8 +80,8 @@ def track_graph_joint(rec: Recording, obs, cfg: EgographConfig, progress: bool =
     (``cfg.joint.rounds`` times). Returns ``(GraphResult, JointPoses)``; ``obs`` must be lifted
     with ``rec``'s poses. ``factors``: the recording's RefinementGraph when already built (with
     ``refinement_factors(..., confirm_jumps_now=False)``)."""
-    from egograph.track.joint import (joint_poses, move_observations, stands_from_result, unmove_points,
-                                      with_joint_poses, world_corrections)
+    from egograph.poses.refine import world_corrections
+    from egograph.track.joint import joint_poses, move_observations, stands_from_result, unmove_points, with_joint_poses
 
     result = track_graph(rec, obs, cfg, progress=progress)
     jp = None
@@ -104,7 +104,8 @@ def regt_estimates(rec: Recording, ann, obs, cfg: EgographConfig, joint: bool = 
     """``egograph regt``: re-estimated centres of the annotated intervals from the lifted boxes
     ``obs``; with ``joint`` the poses are first solved together with one landmark per
     interval (refinement factors + the boxes' inliers). Returns ``(estimates, JointPoses | None)``."""
-    from egograph.track.joint import joint_poses, move_observations, world_corrections
+    from egograph.poses.refine import world_corrections
+    from egograph.track.joint import joint_poses, move_observations
     from egograph.track.regt import interval_stands, reestimate_centres
 
     jp = None

@@ -15,10 +15,10 @@ from egograph.io.annotations import load_annotations
 from egograph.io.poses import read_pose_json, write_pose_json
 from egograph.pipeline import lift, open_recording, regt_estimates, track_graph, track_graph_joint
 from egograph.poses.evaluate import evaluate_trajectory
-from egograph.poses.refine import hololens_constraints
+from egograph.poses.refine import hololens_constraints, world_corrections
 from egograph.settings import EgographConfig
 from egograph.track.intervals import read_intervals_json
-from egograph.track.joint import move_observations, unmove_points, world_corrections
+from egograph.track.joint import move_observations, unmove_points
 from egograph.track.regt import box_detections, interval_stands
 
 NO_MESH = ["refine.mesh=false"]

@@ -41,9 +41,9 @@ from egograph.io.poses import read_pose_json  # noqa: E402
 from egograph.pipeline import (evaluate, lift, open_recording, track_graph, track_graph_joint,  # noqa: E402
                                write_results)
 from egograph.poses.evaluate import evaluate_trajectory  # noqa: E402
-from egograph.poses.refine import refinement_factors  # noqa: E402
+from egograph.poses.refine import refinement_factors, world_corrections  # noqa: E402
 from egograph.settings import EgographConfig  # noqa: E402
-from egograph.track.joint import joint_poses, move_observations, with_joint_poses, world_corrections  # noqa: E402
+from egograph.track.joint import joint_poses, move_observations, with_joint_poses  # noqa: E402
 
 REPO = Path(__file__).resolve().parents[1]
 ROWS = ("reported", "refined", "joint", "joint, no mesh")

@@ -33,9 +33,9 @@ from egograph.io.annotations import load_annotations  # noqa: E402
 from egograph.io.poses import read_pose_json  # noqa: E402
 from egograph.pipeline import open_recording, regt_estimates  # noqa: E402
 from egograph.poses.evaluate import evaluate_trajectory  # noqa: E402
-from egograph.poses.refine import apply_poses  # noqa: E402
+from egograph.poses.refine import apply_poses, world_corrections  # noqa: E402
 from egograph.settings import EgographConfig  # noqa: E402
-from egograph.track.joint import move_observations, world_corrections  # noqa: E402
+from egograph.track.joint import move_observations  # noqa: E402
 from egograph.track.regt import box_detections, reestimate_centres  # noqa: E402
 
 REPO = Path(__file__).resolve().parents[1]

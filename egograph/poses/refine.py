@@ -312,26 +312,33 @@ def refine_recording(rec, cfg: RefineConfig | None = None, progress: bool = Fals
                         rg.stage_seconds, rg.factor_counts, stats, pose_change(rec.pv_poses, pv_row))
 
 
-def corrected_depth_poses(rec, pv_refined_row: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """AHAT rig poses moved by each frame's world-frame correction of the PV pose.
-
-    Row-vector algebra: ``refined_pv = reported_pv @ W_i`` with ``W_i = inv(reported_pv) @ refined_pv``
-    (world -> world); ``refined_depth = reported_depth @ W_i``. Frames without a refined PV
-    pose use the nearest frame's correction.
-    """
+def world_corrections(rec, pv_refined_row: np.ndarray) -> np.ndarray:
+    """Per frame the world-frame correction ``W_i = inv(reported_pv) @ refined_pv`` (row-vector,
+    world -> world, so ``refined_pv = reported_pv @ W_i``). Frames without both poses take the
+    nearest such frame's correction (identity everywhere when there is none)."""
     n = len(rec)
     ok = rec.pv_valid & np.isfinite(pv_refined_row).all(axis=(1, 2))
-    out = np.full((n, 4, 4), np.nan)
+    w = np.tile(np.eye(4), (n, 1, 1))
     if not ok.any():
-        return out, np.zeros(n, bool)
-    w = np.full((n, 4, 4), np.nan)
+        return w
     w[ok] = invert_rigid(rec.pv_poses[ok]) @ pv_refined_row[ok]
     idx = np.flatnonzero(ok)
     near = idx[np.clip(np.searchsorted(idx, np.arange(n)), 0, len(idx) - 1)]
     prev = idx[np.clip(np.searchsorted(idx, np.arange(n)) - 1, 0, len(idx) - 1)]
     near = np.where(np.abs(prev - np.arange(n)) < np.abs(near - np.arange(n)), prev, near)
+    return w[near]
+
+
+def corrected_depth_poses(rec, pv_refined_row: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """AHAT rig poses moved by each frame's world-frame correction of the PV pose
+    (:func:`world_corrections`): ``refined_depth = reported_depth @ W_i``."""
+    n = len(rec)
+    out = np.full((n, 4, 4), np.nan)
+    if not (rec.pv_valid & np.isfinite(pv_refined_row).all(axis=(1, 2))).any():
+        return out, np.zeros(n, bool)
+    w = world_corrections(rec, pv_refined_row)
     dv = rec.depth_valid.copy()
-    out[dv] = rec.depth_poses[dv] @ w[near[dv]]
+    out[dv] = rec.depth_poses[dv] @ w[dv]
     return out, dv
 
 

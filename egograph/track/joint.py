@@ -166,14 +166,6 @@ def joint_poses(rec, stands: list[Stand], refine_cfg, noise: DetectionNoiseConfi
     return JointPoses(pv_row, depth_row, depth_valid, lms, report, rg)
 
 
-def world_corrections(rec, pv_refined_row: np.ndarray) -> np.ndarray:
-    """Per frame ``W_f = reported_f⁻¹ · refined_f`` (row-vector, world -> world; identity where either is invalid)."""
-    w = np.tile(np.eye(4), (len(rec), 1, 1))
-    ok = rec.pv_valid & np.isfinite(pv_refined_row).all(axis=(1, 2))
-    w[ok] = invert_rigid(rec.pv_poses[ok]) @ pv_refined_row[ok]
-    return w
-
-
 def unmove_points(world: np.ndarray, frames: np.ndarray, corrections: np.ndarray) -> np.ndarray:
     """Inverse of the move of :func:`move_observations` for points ``world`` (K, 3) seen at ``frames``."""
     W = invert_rigid(corrections[np.asarray(frames, dtype=np.int64)])
@@ -182,7 +174,9 @@ def unmove_points(world: np.ndarray, frames: np.ndarray, corrections: np.ndarray
 
 def move_observations(obs: Observations, corrections: np.ndarray) -> Observations:
     """Observations re-expressed with corrected poses: world point, camera centre and every
-    alias candidate of a detection move by its frame's correction (row vectors: ``p' = [p 1] · W``)."""
+    alias candidate of a detection move by its frame's correction (row vectors: ``p' = [p 1] · W``;
+    ``corrections`` from :func:`egograph.poses.refine.world_corrections`, the same ones the
+    refined AHAT poses get, so this equals lifting with them)."""
     if len(obs) == 0:
         return obs
     W = corrections[obs.frame.astype(np.int64)]                        # (M, 4, 4)
