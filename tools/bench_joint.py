@@ -31,15 +31,12 @@ import numpy as np
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 from bench_trackers import cache_key  # noqa: E402
 from benchset import DEFAULT_CACHE, benchmark_set  # noqa: E402
-from graph_extras import gt_intervals  # noqa: E402
+from graph_extras import gt_intervals, score  # noqa: E402
 
 from egograph.config import load_config  # noqa: E402
-from egograph.eval.intervals import intervals_from_predictions, score_intervals  # noqa: E402
-from egograph.eval.loader import load_predictions  # noqa: E402
 from egograph.geometry.observations import Observations  # noqa: E402
 from egograph.io.poses import read_pose_json  # noqa: E402
-from egograph.pipeline import (evaluate, lift, open_recording, track_graph, track_graph_joint,  # noqa: E402
-                               write_results)
+from egograph.pipeline import lift, open_recording, track_graph, track_graph_joint  # noqa: E402
 from egograph.poses.evaluate import evaluate_trajectory  # noqa: E402
 from egograph.poses.refine import refinement_factors, world_corrections  # noqa: E402
 from egograph.settings import EgographConfig  # noqa: E402
@@ -47,21 +44,6 @@ from egograph.track.joint import joint_poses, move_observations, with_joint_pose
 
 REPO = Path(__file__).resolve().parents[1]
 ROWS = ("reported", "refined", "joint", "joint, no mesh")
-
-
-def tally(acc: dict, rec, per_frame: dict, out: Path) -> None:
-    """Add one result's counts at 0.25 m and its interval score to ``acc``."""
-    write_results(out, rec, per_frame)
-    rep = evaluate(rec, out)
-    c = next(iter(rep.sequences.values())).result.total
-    k = list(c.thresholds).index(0.25)
-    acc["tp"] += int(c.tp[k])
-    acc["fp"] += int(c.fp[k])
-    acc["fn"] += int(c.fn[k])
-    ts = np.asarray(rec.timestamps)
-    s = score_intervals(gt_intervals(rec), intervals_from_predictions(ts, load_predictions(out, ts)), ts)
-    acc["iv_true"] += s.n_true
-    acc["iv_rec"] += s.n_recovered
 
 
 def main() -> None:
@@ -77,7 +59,8 @@ def main() -> None:
     cfg_nomesh = load_config(EgographConfig, REPO / "configs" / "default.yaml", [*args.overrides, "refine.mesh=false"])
     roots = benchmark_set(args.seeds, args.frames, overrides=args.synth_overrides, cache=DEFAULT_CACHE,
                           progress=False)
-    acc = {(r, d): {"tp": 0, "fp": 0, "fn": 0, "iv_true": 0, "iv_rec": 0} for r in ROWS for d in ("svoe", "mvpe")}
+    reports: dict[str, dict] = {"svoe": {}, "mvpe": {}}   # graph_extras.score: EvalReport per row
+    extras: dict[tuple[str, str], dict] = {}               # ... and the true intervals recovered
     ate: dict[tuple[str, str], list] = {}
     secs: dict[str, float] = {}
 
@@ -96,12 +79,11 @@ def main() -> None:
         t0 = time.perf_counter()
         # no stands: exactly ``egograph refine`` (solve, jump test, solve again)
         refined = joint_poses(rec, [], cfg.refine, cfg.graph.noise, cfg.joint, factors=factors["joint"])
-        pv = refined.pv_poses
         timed("refine solve", t0)
-        line = [f"seed {seed}: ATE reported {100 * evaluate_trajectory(rec.pv_poses, gt).ate_rmse_m:.2f} cm"]
         ate.setdefault(("reported", "-"), []).append(evaluate_trajectory(rec.pv_poses, gt))
-        ate.setdefault(("refined", "-"), []).append(evaluate_trajectory(pv, gt))
-        line.append(f"refined {100 * ate[('refined', '-')][-1].ate_rmse_m:.2f}")
+        ate.setdefault(("refined", "-"), []).append(evaluate_trajectory(refined.pv_poses, gt))
+        line = [f"seed {seed}: ATE reported {100 * ate[('reported', '-')][-1].ate_rmse_m:.2f} cm",
+                f"refined {100 * ate[('refined', '-')][-1].ate_rmse_m:.2f}"]
         for det_set in ("svoe", "mvpe"):
             cfg.lift.mode = "robust"
             path = root / "observations" / f"{det_set}_robust_{cache_key(root, cfg)}.npz"
@@ -110,18 +92,23 @@ def main() -> None:
             else:  # shared with tools/bench_trackers.py
                 obs, _ = lift(rec, det_set, cfg, progress=False)
                 obs.save(path)
-            out = args.out / root.name / det_set
+            out = args.out / root.name
+            everything = gt_intervals(rec)  # interval recall over all true intervals
+
+            def tally(row: str, per_frame: dict) -> None:
+                score(reports, extras, det_set, row, rec, out / f"{det_set}_{row.replace(', ', '_').replace(' ', '_')}",
+                      per_frame, everything, None)
+
             t0 = time.perf_counter()
-            tally(acc[("reported", det_set)], rec, track_graph(rec, obs, cfg).per_frame, out / "reported")
+            tally("reported", track_graph(rec, obs, cfg).per_frame)
             timed("graph", t0)
             moved = move_observations(obs, world_corrections(rec, refined.pv_poses))
-            tally(acc[("refined", det_set)], rec, track_graph(with_joint_poses(rec, refined), moved, cfg).per_frame,
-                  out / "refined")
+            tally("refined", track_graph(with_joint_poses(rec, refined), moved, cfg).per_frame)
             for row, c in (("joint", cfg), ("joint, no mesh", cfg_nomesh)):
                 t0 = time.perf_counter()
                 result, jp = track_graph_joint(rec, obs, c, factors=factors[row])
                 timed(f"{row}: graph + joint solve + graph", t0)
-                tally(acc[(row, det_set)], rec, result.per_frame, out / row.replace(", ", "_").replace(" ", "_"))
+                tally(row, result.per_frame)
                 e = evaluate_trajectory(jp.pv_poses, gt)
                 ate.setdefault((row, det_set), []).append(e)
                 line.append(f"{row} ({det_set}) {100 * e.ate_rmse_m:.2f} [{jp.report['stands']} stands, "
@@ -140,11 +127,11 @@ def main() -> None:
     print("|---|---|---|---|---|---|---|---|")
     for row in ROWS:
         for det_set in ("svoe", "mvpe"):
-            a = acc[(row, det_set)]
-            p = 100 * a["tp"] / max(a["tp"] + a["fp"], 1)
-            r = 100 * a["tp"] / max(a["tp"] + a["fn"], 1)
+            c, ex = reports[det_set][row].total, extras[(det_set, row)]
+            k = list(c.thresholds).index(0.25)
+            p, r = 100 * c.precision[k], 100 * c.recall[k]
             key = (row, det_set) if (row, det_set) in ate else (row, "-")
-            print(f"| {row} | {det_set} | {mean_ate(key)} | {p:.1f} | {r:.1f} | {a['iv_rec']}/{a['iv_true']} |")
+            print(f"| {row} | {det_set} | {mean_ate(key)} | {p:.1f} | {r:.1f} | {ex['obs_recovered']}/{ex['obs_true']} |")
     print("\ntime (s, whole set): " + ", ".join(f"{k} {v:.1f}" for k, v in secs.items()))
 
 
