@@ -2,11 +2,14 @@
 
 from __future__ import annotations
 
+import shutil
 from pathlib import Path
 
+import numpy as np
 import pytest
 
 from egograph.config import load_config
+from egograph.io.poses import read_pose_json, write_pose_json
 from egograph.synth.config import SynthConfig
 from egograph.synth.generate import generate
 
@@ -30,3 +33,39 @@ def tiny_rec(tmp_path_factory) -> Path:
 def tiny_rgb_rec(tmp_path_factory) -> Path:
     """A 30-frame synthetic recording with PV RGB frames."""
     return make_recording(tmp_path_factory.mktemp("tiny_rgb") / "rec", 3, "frames=30")
+
+
+def sequence_dir(root: Path) -> Path:
+    """The sequence folder of a recording root (the one holding ``pv_pose.json``)."""
+    return next(p for p in root.iterdir() if (p / "pv_pose.json").is_file())
+
+
+def true_poses(root: Path):
+    """``(timestamps, pv, depth)``: the true row-vector poses of a synthetic recording (synth_gt)."""
+    gt = root / "synth_gt" / sequence_dir(root).name
+    ts, pv, _ = read_pose_json(gt / "pv_pose.json")
+    _, depth, _ = read_pose_json(gt / "depth_ahat_pose.json")
+    return ts, pv, depth
+
+
+def copy_with_pose_error(src: Path, dst: Path, make_error, frames: int | None = None) -> Path:
+    """Copy a recording, replacing its reported poses by ``truth @ make_error(ts, pv)[f]`` (row
+    vectors: a world-frame error, the generator's model); only the first ``frames`` when given."""
+    shutil.copytree(src, dst)
+    ts, pv, depth = true_poses(dst)
+    err = make_error(ts, pv)
+    n = frames or len(ts)
+    seq = sequence_dir(dst)
+    write_pose_json(seq / "pv_pose.json", ts[:n], (pv @ err)[:n])
+    write_pose_json(seq / "depth_ahat_pose.json", ts[:n], (depth @ err)[:n])
+    return dst
+
+
+def no_pose_error(ts, pv):
+    return np.tile(np.eye(4), (len(ts), 1, 1))
+
+
+@pytest.fixture(scope="session")
+def exact_rec(tiny_rec, tmp_path_factory) -> Path:
+    """The tiny recording with the true poses as the reported ones (pose error switched off)."""
+    return copy_with_pose_error(tiny_rec, tmp_path_factory.mktemp("exact") / "rec", no_pose_error)

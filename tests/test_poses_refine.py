@@ -3,10 +3,11 @@
 from __future__ import annotations
 
 import json
-import shutil
 
 import numpy as np
 import pytest
+
+from conftest import copy_with_pose_error, no_pose_error, sequence_dir, true_poses
 
 from egograph.cli import main
 from egograph.config import load_config
@@ -19,29 +20,6 @@ from egograph.poses.evaluate import evaluate_trajectory
 from egograph.poses.refine import apply_poses, refine_recording, refinement_factors
 
 MESH_ONLY = ["icp=false", "mesh=true", "colmap=false"]
-
-
-def _seq(root):
-    return next(p for p in root.iterdir() if (p / "pv_pose.json").is_file())
-
-
-def _truth(root):
-    gt = root / "synth_gt" / _seq(root).name
-    ts, pv, _ = read_pose_json(gt / "pv_pose.json")
-    _, depth, _ = read_pose_json(gt / "depth_ahat_pose.json")
-    return ts, pv, depth
-
-
-def _copy_with_poses(src, dst, make_error, frames: int | None = None):
-    """Copy a recording, replacing its reported poses by ``truth @ error`` (the generator's model)."""
-    shutil.copytree(src, dst)
-    ts, pv, depth = _truth(dst)
-    err = make_error(ts, pv)
-    n = frames or len(ts)
-    seq = _seq(dst)
-    write_pose_json(seq / "pv_pose.json", ts[:n], (pv @ err)[:n])
-    write_pose_json(seq / "depth_ahat_pose.json", ts[:n], (depth @ err)[:n])
-    return dst
 
 
 def _jump_errors(ts, pv):
@@ -61,18 +39,12 @@ def _jump_errors(ts, pv):
 
 @pytest.fixture(scope="module")
 def jump_rec(tiny_rec, tmp_path_factory):
-    return _copy_with_poses(tiny_rec, tmp_path_factory.mktemp("jump") / "rec", _jump_errors)
-
-
-@pytest.fixture(scope="module")
-def exact_rec(tiny_rec, tmp_path_factory):
-    """The tiny recording with the true poses as the reported ones (pose error switched off)."""
-    return _copy_with_poses(tiny_rec, tmp_path_factory.mktemp("exact") / "rec", lambda ts, pv: np.tile(np.eye(4), (len(ts), 1, 1)))
+    return copy_with_pose_error(tiny_rec, tmp_path_factory.mktemp("jump") / "rec", _jump_errors)
 
 
 def test_mesh_refinement_halves_ate_with_jumps(jump_rec):
     rec = Recording.open(jump_rec)
-    _, gt, gt_depth = _truth(jump_rec)
+    _, gt, gt_depth = true_poses(jump_rec)
     before = evaluate_trajectory(rec.pv_poses, gt)
     res = refine_recording(rec, load_config(RefineConfig, None, MESH_ONLY))
     after = evaluate_trajectory(res.pv_poses, gt)
@@ -106,8 +78,8 @@ def test_no_harm_without_pose_error(exact_rec):
 
 def test_corrupted_stretch_spike_rejected(tiny_rec, tmp_path):
     """Missing depth frames and a 1 m / 20 deg pose spike: refined without error, the spike rejected."""
-    root = _copy_with_poses(tiny_rec, tmp_path / "rec", lambda ts, pv: np.tile(np.eye(4), (len(ts), 1, 1)), frames=90)
-    seq = _seq(root)
+    root = copy_with_pose_error(tiny_rec, tmp_path / "rec", no_pose_error, frames=90)
+    seq = sequence_dir(root)
     ts, pv, _ = read_pose_json(seq / "pv_pose.json")
     _, depth, _ = read_pose_json(seq / "depth_ahat_pose.json")
     for t in ts[20:35]:
@@ -121,7 +93,7 @@ def test_corrupted_stretch_spike_rejected(tiny_rec, tmp_path):
     write_pose_json(seq / "pv_pose.json", ts, pv)
     write_pose_json(seq / "depth_ahat_pose.json", ts, depth)
     rec = Recording.open(root)
-    _, gt, _ = _truth(root)
+    _, gt, _ = true_poses(root)
     res = refine_recording(rec, load_config(RefineConfig, None, ["icp=true", "mesh=true", "mesh_stride=15"]))
     err = np.linalg.norm(res.pv_poses[:, 3, :3] - gt[:90, 3, :3], axis=1)
     assert np.linalg.norm(pv[k, 3, :3] - gt[k, 3, :3]) > 1.0
@@ -167,7 +139,7 @@ def test_cli_refine_writes_outputs_and_apply_poses(jump_rec, tmp_path, capsys):
     assert a["ate_rmse_m"] == pytest.approx(b["ate_rmse_m"], abs=1e-6)
     assert a["ate_rmse_m"] == pytest.approx(report["eval_refined"]["ate_rmse_m"], abs=1e-9)
     # never onto the input
-    assert main(["refine", str(jump_rec), "--out", str(_seq(jump_rec)), "--quiet"]) == 2
+    assert main(["refine", str(jump_rec), "--out", str(sequence_dir(jump_rec)), "--quiet"]) == 2
     assert "refusing" in capsys.readouterr().err
 
 
@@ -180,14 +152,14 @@ def test_apply_poses_rejects_other_timestamps(jump_rec, tmp_path):
         apply_poses(rec, tmp_path / "nope")
 
 
-def test_colmap_relative_factors_match_truth(tiny_rgb_rec):
+def test_colmap_relative_factors_matchtrue_poses(tiny_rgb_rec):
     """SIFT + matching + triangulation at the reported poses + pose-prior BA: the keyframe-to-keyframe
     motions it measures agree with the truth to millimetres."""
     from egograph.poses.colmap import colmap_constraints
     from egograph.poses.constraints import invert_columns, pv_columns
 
     rec = Recording.open(tiny_rgb_rec)
-    _, gt, _ = _truth(tiny_rgb_rec)
+    _, gt, _ = true_poses(tiny_rgb_rec)
     cfg = load_config(RefineConfig, None, ["colmap_stride=3", "colmap_overlap=3"])
     c, stats = colmap_constraints(rec, cfg, pv_columns(rec))
     assert stats["keyframes"] == 10 and stats["points"] > 200 and stats["reproj_after_px"] < 1.0

@@ -3,16 +3,17 @@
 from __future__ import annotations
 
 import dataclasses
-import shutil
 
 import numpy as np
 import pytest
+
+from conftest import copy_with_pose_error, true_poses
 
 from egograph.cli import main
 from egograph.config import load_config
 from egograph.geometry.lift import lift_recording
 from egograph.io.annotations import load_annotations
-from egograph.io.poses import read_pose_json, write_pose_json
+from egograph.io.poses import read_pose_json
 from egograph.pipeline import lift, open_recording, regt_estimates, track_graph, track_graph_joint
 from egograph.poses.evaluate import evaluate_trajectory
 from egograph.poses.refine import hololens_constraints, world_corrections
@@ -22,21 +23,6 @@ from egograph.track.joint import move_observations, unmove_points
 from egograph.track.regt import box_detections, interval_stands
 
 NO_MESH = ["refine.mesh=false"]
-
-
-def _seq(root):
-    return next(p for p in root.iterdir() if (p / "pv_pose.json").is_file())
-
-
-def _with_poses(src, dst, error):
-    """Copy a recording with reported poses ``truth @ error[f]`` (row vectors: a world-frame error)."""
-    shutil.copytree(src, dst)
-    gt = dst / "synth_gt" / _seq(dst).name
-    ts, pv, _ = read_pose_json(gt / "pv_pose.json")
-    _, depth, _ = read_pose_json(gt / "depth_ahat_pose.json")
-    write_pose_json(_seq(dst) / "pv_pose.json", ts, pv @ error(len(ts)))
-    write_pose_json(_seq(dst) / "depth_ahat_pose.json", ts, depth @ error(len(ts)))
-    return dst, pv
 
 
 def _rigid(deg_y: float, t) -> np.ndarray:
@@ -87,16 +73,16 @@ def jump_rec(tiny_rec, tmp_path_factory):
     k = next(int(c) for c in candidates for st in stands
              if (st.frames < c).sum() >= 3 and (st.frames >= c).sum() >= 3)
 
-    def error(n):
-        e = np.tile(np.eye(4), (n, 1, 1))
+    def error(ts, pv):
+        e = np.tile(np.eye(4), (len(ts), 1, 1))
         e[k:] = _rigid(1.0, [0.08, 0.0, 0.03])
         return e
 
-    return _with_poses(tiny_rec, tmp_path_factory.mktemp("joint_jump") / "rec", error)
+    return copy_with_pose_error(tiny_rec, tmp_path_factory.mktemp("joint_jump") / "rec", error)
 
 
 def test_regt_joint_poses_find_the_jump_the_pose_graph_alone_cannot(jump_rec):
-    root, truth = jump_rec
+    root, truth = jump_rec, true_poses(jump_rec)[1]
     cfg = load_config(EgographConfig, None, [*NO_MESH, "joint.noise_scale=1"])
     rec = open_recording(root, cfg)
     ann = load_annotations(rec.annotation_dir)
@@ -114,13 +100,8 @@ def test_regt_joint_poses_find_the_jump_the_pose_graph_alone_cannot(jump_rec):
     assert len(est) == len(ann.motion)
 
 
-@pytest.fixture(scope="module")
-def exact_rec(tiny_rec, tmp_path_factory):
-    return _with_poses(tiny_rec, tmp_path_factory.mktemp("joint_exact") / "rec", lambda n: np.tile(np.eye(4), (n, 1, 1)))
-
-
 def test_joint_mode_does_no_harm_with_exact_poses(exact_rec):
-    root, truth = exact_rec
+    root, truth = exact_rec, true_poses(exact_rec)[1]
     cfg = load_config(EgographConfig, None, NO_MESH)
     rec = open_recording(root, cfg)
     obs, _ = lift(rec, "mvpe", cfg, progress=False)
