@@ -101,17 +101,10 @@ def _add_joint_args(p: argparse.ArgumentParser, default_out: str) -> None:
 
 
 def _write_joint_poses(con, rec, jp, cfg, out: Path) -> None:
-    import numpy as np
+    from egograph.poses.refine import write_refined
 
-    from egograph.poses.refine import RefineResult, write_refined
-
-    ok = np.isfinite(jp.pv_poses).all(axis=(1, 2))
-    rr = RefineResult(rec.timestamps.copy(), jp.pv_poses, jp.depth_poses, ok, jp.depth_valid,
-                      dict(jp.report.get("refinement_seconds", {})), dict(jp.report.get("refinement_factors", {})),
-                      {"joint": {k: v for k, v in jp.report.items() if k not in ("refinement_seconds", "change")}},
-                      jp.report.get("change", {}))
-    write_refined(rr, out, rec, cfg.refine, {"mode": "joint (poses + object landmarks)", "joint": cfg.joint})
-    ch = jp.report.get("change", {})
+    write_refined(jp.poses, out, rec, cfg.refine, {"mode": "joint (poses + object landmarks)", "joint": cfg.joint})
+    ch = jp.report["change"]
     con.print(f"joint poses: {jp.report['stands']} stands, {jp.report['detection_factors']} detection factors; poses "
               f"moved {1000 * ch.get('trans_rms_m', 0):.1f} mm / {ch.get('rot_rms_deg', 0):.3f} deg RMS -> {out}")
 

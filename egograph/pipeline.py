@@ -95,7 +95,7 @@ def track_graph_joint(rec: Recording, obs, cfg: EgographConfig, progress: bool =
         factors = jp.factors
         corrections = world_corrections(rec, jp.pv_poses)
         result = track_graph(with_joint_poses(rec, jp), move_observations(obs, corrections), cfg, progress=progress)
-    result.metadata["joint_poses"] = {k: v for k, v in jp.report.items() if k != "refinement_seconds"}
+    result.metadata["joint_poses"] = jp.report
     result.metadata["tracker"] = "graph (joint poses)"
     return result, jp
 

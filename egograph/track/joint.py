@@ -37,6 +37,7 @@ import numpy as np
 from egograph.config import knob
 from egograph.geometry.hl2ss import invert_rigid
 from egograph.geometry.observations import Observations
+from egograph.poses.refine import RefineResult, confirm_jumps, corrected_depth_poses, pose_change, refinement_factors
 from egograph.track.detection_factor import DetectionNoiseConfig, robust
 
 
@@ -63,12 +64,24 @@ class Stand:
 
 @dataclass
 class JointPoses:
-    pv_poses: np.ndarray          # (N, 4, 4) row-vector PV camera -> world, refined (NaN where invalid)
-    depth_poses: np.ndarray       # (N, 4, 4) row-vector AHAT rig node -> world, moved with the PV poses
-    depth_valid: np.ndarray
+    poses: RefineResult           # the solved PV and AHAT poses, in the form ``egograph refine`` writes
     landmarks: np.ndarray         # (J, 3) stand centres from the joint solve, world, metres
-    report: dict = field(default_factory=dict)
+    report: dict = field(default_factory=dict)   # stands, factors, jump test, solver, pose change
     factors: object = None        # the RefinementGraph used (reusable by the next round)
+
+    @property
+    def pv_poses(self) -> np.ndarray:
+        """(N, 4, 4) row-vector PV camera -> world, solved (NaN where invalid)."""
+        return self.poses.pv_poses
+
+    @property
+    def depth_poses(self) -> np.ndarray:
+        """(N, 4, 4) row-vector AHAT rig node -> world, moved with the PV poses."""
+        return self.poses.depth_poses
+
+    @property
+    def depth_valid(self) -> np.ndarray:
+        return self.poses.depth_valid
 
 
 def object_key(j: int) -> int:
@@ -131,7 +144,6 @@ def joint_poses(rec, stands: list[Stand], refine_cfg, noise: DetectionNoiseConfi
     joint solution, so an object seen before and after a jump also decides whether it happened."""
     from egograph.poses.constraints import pv_columns
     from egograph.poses.graph import solve, values_to_columns
-    from egograph.poses.refine import confirm_jumps, corrected_depth_poses, pose_change, refinement_factors
 
     t = time.perf_counter()
     rg = factors if factors is not None else refinement_factors(rec, refine_cfg, progress=progress,
@@ -155,15 +167,18 @@ def joint_poses(rec, stands: list[Stand], refine_cfg, noise: DetectionNoiseConfi
     depth_row, depth_valid = corrected_depth_poses(rec, pv_row)
     lms = np.array([np.asarray(result.atPoint3(object_key(j))) if result.exists(object_key(j)) else np.full(3, np.nan)
                     for j in range(len(stands))]).reshape(-1, 3)
-    report = {"stands": len(stands), "detection_factors": n_det, "jumps": jumps, "refinement_factors": dict(rg.factor_counts),
-              "refinement_seconds": dict(rg.stage_seconds), "factors_seconds": t_factors, "solver": rep,
+    report = {"stands": len(stands), "detection_factors": n_det, "jumps": jumps,
+              "refinement_factors": dict(rg.factor_counts), "factors_seconds": t_factors, "solver": rep,
               "change": pose_change(rec.pv_poses, pv_row)}
+    poses = RefineResult(rec.timestamps.copy(), pv_row, depth_row, np.isfinite(pv_row).all(axis=(1, 2)), depth_valid,
+                         dict(rg.stage_seconds, joint_solve=rep["seconds"]), dict(rg.factor_counts, stands=n_det),
+                         {"joint": {k: v for k, v in report.items() if k != "change"}}, report["change"])
     if progress:
         ch = report["change"]
         print(f"joint poses: {len(stands)} stands, {n_det} detection factors; error {rep['error_initial']:.1f} -> "
               f"{rep['error_final']:.1f} in {rep['iterations']} iterations ({rep['seconds']:.1f} s); poses moved "
               f"{1000 * ch.get('trans_rms_m', 0):.1f} mm / {ch.get('rot_rms_deg', 0):.3f} deg RMS", flush=True)
-    return JointPoses(pv_row, depth_row, depth_valid, lms, report, rg)
+    return JointPoses(poses, lms, report, rg)
 
 
 def unmove_points(world: np.ndarray, frames: np.ndarray, corrections: np.ndarray) -> np.ndarray:
@@ -191,5 +206,5 @@ def move_observations(obs: Observations, corrections: np.ndarray) -> Observation
 
 def with_joint_poses(rec, jp: JointPoses):
     """A copy of ``rec`` with the joint solve's PV and AHAT poses."""
-    return dataclasses.replace(rec, pv_poses=jp.pv_poses, pv_valid=np.isfinite(jp.pv_poses).all(axis=(1, 2)),
+    return dataclasses.replace(rec, pv_poses=jp.pv_poses, pv_valid=jp.poses.pv_valid,
                                depth_poses=jp.depth_poses, depth_valid=jp.depth_valid)
