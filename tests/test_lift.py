@@ -10,7 +10,7 @@ import pytest
 
 from egograph.geometry import hl2ss as g
 from egograph.geometry.lift import (LiftConfig, alias_shifts, box_reach, lift_recording, nearest_dominant_cluster,
-                                    shrink_box, synth_lift_errors, write_lifted_dir)
+                                    prefetched, shrink_box, synth_lift_errors, write_lifted_dir)
 from egograph.io.annotations import Box
 from egograph.io.detections import Detection, read_detection_dir, read_results_dir
 from egograph.io.poses import read_pose_json
@@ -272,12 +272,36 @@ def test_no_mesh_takes_reading_as_is(tiny_rec, svoe):
 
 # --------------------------------------------------------------------------- determinism, output
 
-def test_deterministic(tiny_rec, svoe, robust_obs):
+@pytest.mark.parametrize("threads", [1, 3])
+def test_deterministic(tiny_rec, svoe, robust_obs, threads):
+    """Same observations on a second run, whatever the number of depth-decoding threads
+    (the default is 2): frames are decoded out of order but lifted in order."""
     rec = fresh(tiny_rec)
     _, obs1, _ = robust_obs
-    obs2, _ = lift_recording(rec, svoe, LiftConfig(), progress=False)
+    obs2, _ = lift_recording(rec, svoe, LiftConfig(decode_threads=threads), progress=False)
     for name in obs1.__dataclass_fields__:
         np.testing.assert_array_equal(getattr(obs1, name), getattr(obs2, name), err_msg=name)
+
+
+def test_prefetched_keeps_order_and_ahead():
+    """Loads come back in key order, and never more than ``ahead`` run ahead of the consumer."""
+    import threading
+    import time
+
+    started, lock = [], threading.Lock()
+
+    def load(k):
+        with lock:
+            started.append(k)
+        time.sleep(0.002 * (k % 3))  # uneven decode times: later keys may finish first
+        return k * k
+
+    got = []
+    for key, val in prefetched(load, list(range(20)), ahead=4, threads=3):
+        with lock:
+            assert len(started) <= key + 1 + 4
+        got.append((key, val))
+    assert got == [(k, k * k) for k in range(20)]
 
 
 def test_write_lifted_dir(tmp_path, robust_obs):

@@ -63,7 +63,7 @@ def main() -> None:
     t_lift = t_solve = 0.0
     for seed, root in zip(args.seeds, benchmark_set(args.seeds, args.frames, cache=DEFAULT_CACHE)):
         rec = open_recording(root, cfg)
-        key = [to_dict(cfg.lift), to_dict(cfg.io)]
+        key = [cfg.lift.result_knobs(), to_dict(cfg.io)]
         if args.poses:
             poses = Path(args.poses.format(seed=seed))
             rec = apply_poses(rec, poses)

@@ -58,7 +58,7 @@ import math
 import time
 from collections import deque
 from concurrent.futures import ThreadPoolExecutor
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, fields
 from itertools import islice
 from pathlib import Path
 from typing import Callable, Iterator, Mapping, Sequence, TypeVar
@@ -122,6 +122,13 @@ class LiftConfig:
                                      "gives the candidate nearest to the mesh)")
     n_candidates: int = knob(6, "alias candidates kept per observation, K (6 covers (0.1, 5.5] m at a "
                                 "0.999 m alias)")
+    decode_threads: int = knob(2, "threads decoding depth PNGs ahead of the lifting loop; OpenCV releases "
+                                  "the GIL while decoding, and robust lifting is bound by the decode, so 2 "
+                                  "uses both cores of a small machine (does not change the observations)")
+
+    def result_knobs(self) -> dict:
+        """The knobs the observations depend on (cache keys): all but ``decode_threads``."""
+        return {f.name: getattr(self, f.name) for f in fields(self) if f.name != "decode_threads"}
 
     def check(self) -> None:
         """Raise ValueError on a value the lift cannot use."""
@@ -133,8 +140,8 @@ class LiftConfig:
             raise ValueError(f"lift.shrink {self.shrink}: expected 0 < shrink <= 1")
         if not 0.0 <= self.min_cluster_share <= 1.0:
             raise ValueError(f"lift.min_cluster_share {self.min_cluster_share}: expected 0-1")
-        if self.min_pixels < 1 or self.n_candidates < 1:
-            raise ValueError("lift.min_pixels and lift.n_candidates must be >= 1")
+        if self.min_pixels < 1 or self.n_candidates < 1 or self.decode_threads < 1:
+            raise ValueError("lift.min_pixels, lift.n_candidates and lift.decode_threads must be >= 1")
         if self.cluster_gap_m <= 0 or self.max_range_m <= MIN_RANGE_M or self.max_object_size_m <= 0:
             raise ValueError("lift.cluster_gap_m and lift.max_object_size_m must be > 0, lift.max_range_m > 0.1")
 
@@ -687,7 +694,8 @@ def lift_recording(rec, detections: dict[int, list[Detection]], cfg: LiftConfig,
         if any(b is not None for b in boxes):
             frame = _frame_matrices(ctx, i) or "invalid_pose"
         plan.append((i, ts, dets, boxes, frame))
-    depth = prefetched(rec.depth_raw, [p[0] for p in plan if isinstance(p[4], _Frame)], PREFETCH_FRAMES)
+    depth = prefetched(rec.depth_raw, [p[0] for p in plan if isinstance(p[4], _Frame)],
+                       PREFETCH_PER_THREAD * cfg.decode_threads, cfg.decode_threads)
     bar = tqdm(plan, desc=f"lift ({cfg.mode})", unit="frame", disable=not progress, mininterval=1.0)
     for i, ts, dets, boxes, frame in bar:
         state = _frame_state(ctx, frame, next(depth)[1]) if isinstance(frame, _Frame) else frame
@@ -706,19 +714,20 @@ def lift_recording(rec, detections: dict[int, list[Detection]], cfg: LiftConfig,
 
 
 SKIP_DETAILS = {"no_depth_frame": "missing or unreadable depth_ahat png"}
-PREFETCH_FRAMES = 3  # depth frames decoded ahead (512 KB each)
+PREFETCH_PER_THREAD = 3  # depth frames decoded ahead per decoding thread (512 KB each)
 _END = object()
 
 
-def prefetched(load: Callable[[int], T], keys: Sequence[int], ahead: int) -> Iterator[tuple[int, T]]:
-    """``(key, load(key))`` in order, with up to ``ahead`` loads running in a background thread.
+def prefetched(load: Callable[[int], T], keys: Sequence[int], ahead: int, threads: int = 1
+               ) -> Iterator[tuple[int, T]]:
+    """``(key, load(key))`` in order, with up to ``ahead`` loads running on ``threads`` background threads.
 
-    PNG decoding (OpenCV) releases the GIL, so on a second core it overlaps with the
-    numpy work of the frame being lifted.
+    PNG decoding (OpenCV) releases the GIL, so on other cores it overlaps with the numpy
+    work of the frame being lifted (and, with two threads, with the next frame's decode).
     """
     if not keys:
         return
-    with ThreadPoolExecutor(max_workers=1) as pool:
+    with ThreadPoolExecutor(max_workers=threads) as pool:
         todo = iter(keys)
         pending = deque((k, pool.submit(load, k)) for k in islice(todo, ahead))
         while pending:
