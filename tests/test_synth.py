@@ -134,15 +134,15 @@ def test_frontend_scores_overlap_and_degrade():
 
     cfg = FrontEndConfig(detect_rate=0.6, true_score=[0.66, 0.09], lookalike_score=[0.64, 0.08],
                          clutter_score=[0.56, 0.08])
-    fe = FrontEnd(np.random.default_rng(0), cfg, np.array([1, 0, -1]), (720, 1280))
+    fe = FrontEnd(np.random.SeedSequence(0), cfg, np.array([1, 0, -1]), (720, 1280))
     big = np.array([[100, 100, 220, 220], [400, 100, 520, 220], [700, 300, 820, 420]], float)
     clutter = np.full((3, 3, 4), np.nan)
     clutter[:, 0] = [900, 500, 960, 560]
     sources, scores, hits = [], [], {"sharp": 0, "blurred": 0}
     for kind, motion in (("sharp", 0.0), ("blurred", 300.0)):
-        for _ in range(400):
+        for index in range(400):
             view = FrameView(np.array([1.0, 1.0, 1.0]), big, np.full(3, motion), clutter)
-            for c in fe.frame(view):
+            for c in fe.frame(view, index):
                 sources.append(c.source)
                 scores.append(c.score)
                 hits[kind] += c.source == "true"
@@ -150,6 +150,40 @@ def test_frontend_scores_overlap_and_degrade():
     assert ((sc > 0.6) & (src != "true")).sum() > 20 and ((sc < 0.6) & (src == "true")).sum() > 20
     assert (src == "twin").sum() > 20  # the look-alike pair confuses the matcher
     assert hits["blurred"] < 0.6 * hits["sharp"]
+
+
+def test_frontend_common_random_numbers():
+    """A knob change alters detections only where that knob matters: without clutter, every
+    detection that clutter did not win is unchanged (same box, same score), frame by frame."""
+    from egograph.synth.config import FrontEndConfig
+    from egograph.synth.frontend import FrameView, FrontEnd
+
+    rng = np.random.default_rng(3)
+    k, c = 4, 3
+    twins = np.array([1, 0, -1, -1])
+    base = FrontEndConfig(detect_rate=0.7, clutter_rate=0.5, clutter_score=[0.6, 0.08])
+    runs = {}
+    for name, cfg in (("base", base), ("no_clutter", FrontEndConfig(**{**vars(base), "clutter_rate": 0.0}))):
+        fe = FrontEnd(np.random.SeedSequence([5, 1]), cfg, twins, (720, 1280))
+        rng = np.random.default_rng(3)
+        out = []
+        for index in range(300):
+            xy = rng.uniform(100, 600, (k, 2))
+            boxes = np.hstack([xy, xy + rng.uniform(60, 160, (k, 2))])
+            cxy = rng.uniform(100, 600, (k, c, 2))
+            view = FrameView(rng.uniform(0.2, 1.0, k), boxes, rng.uniform(0, 200, k),
+                             np.concatenate([cxy, cxy + 80], axis=2))
+            out.append({d.instance: d for d in fe.frame(view, index)})
+        runs[name] = out
+    kept = 0
+    for a, b in zip(runs["base"], runs["no_clutter"]):
+        assert not any(d.source == "clutter" for d in b.values())
+        for i, d in a.items():
+            if d.source != "clutter":
+                assert i in b and b[i].score == d.score and np.array_equal(b[i].box, d.box)
+                kept += 1
+    n_clutter = sum(d.source == "clutter" for f in runs["base"] for d in f.values())
+    assert kept > 100 and n_clutter > 30
 
 
 def test_redetect_reproduces_and_changes_only_detections(tmp_path):

@@ -17,36 +17,27 @@ else runs on the machine: run it alone.
 from __future__ import annotations
 
 import argparse
-import json
+import sys
 import time
 from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
 
 import numpy as np
 
-from egograph.config import load_config
 from egograph.geometry.lift import LiftConfig, lift_recording, synth_lift_errors
 from egograph.io.detections import read_detection_dir
 from egograph.io.poses import read_pose_json
 from egograph.io.recording import Recording
-from egograph.synth.config import SynthConfig
-from egograph.synth.generate import generate
 
 REPO = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(REPO / "tools"))
+from benchset import benchmark_set  # noqa: E402
 
 
 def recording(cache: Path, frames: int, seed: int) -> Path:
-    """The cached SVOE recording of ``frames`` frames for ``seed`` (generated when missing)."""
-    root = cache / f"f{frames}" / f"seed{seed}"
-    meta = root / "recording.json"
-    if meta.is_file():
-        m = json.loads(meta.read_text())
-        if m.get("seed") == seed and m.get("frames") == frames:
-            return root
-    cfg = load_config(SynthConfig, REPO / "configs" / "synth" / "svoe.yaml", [f"frames={frames}", "pv.rgb=false"])
-    print(f"generating seed {seed} ({frames} frames) -> {root}", flush=True)
-    generate(root, cfg, seed=seed, progress=True)
-    return root
+    """The cached SVOE recording of ``frames`` frames for ``seed`` (tools/benchset.py: generated
+    when missing, detections re-simulated when the front-end changed)."""
+    return benchmark_set([seed], frames, cache=cache, progress=True)[0]
 
 
 def decode_seconds(rec: Recording, frames: list[int], threads: int = 1) -> float:

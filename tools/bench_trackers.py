@@ -54,7 +54,7 @@ MODES = ("reference", "robust")
 def cache_key(root: Path, cfg: EgographConfig, poses: Path | None = None) -> str:
     """Observations depend on the detections (front-end config), the lifting config and the poses."""
     meta = json.loads((root / "recording.json").read_text())
-    parts = [meta["config"]["detections"], cfg.lift.result_knobs(), to_dict(cfg.io)]
+    parts = [meta["config"]["detections"], meta.get("frontend_revision", 1), cfg.lift.result_knobs(), to_dict(cfg.io)]
     if poses is not None:
         parts.append(hashlib.sha256((poses / "pv_pose.json").read_bytes()).hexdigest())
     blob = json.dumps(parts, sort_keys=True)

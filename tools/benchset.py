@@ -11,6 +11,7 @@ from pathlib import Path
 
 from egograph.config import load_config, to_dict
 from egograph.synth.config import SynthConfig
+from egograph.synth.frontend import FRONTEND_REVISION
 from egograph.synth.generate import GENERATOR_REVISION, generate, redetect
 
 REPO = Path(__file__).resolve().parents[1]
@@ -33,8 +34,8 @@ def benchmark_set(seeds: list[int], frames: int, config: str | Path = REPO / "co
                 or strip(have) != strip(want):
             print(f"generating benchmark recording seed {seed} ({frames} frames) -> {root}", flush=True)
             generate(root, cfg, seed=seed, progress=progress)
-        elif have.get("detections") != want["detections"]:
-            print(f"re-simulating detections of seed {seed} (front-end config changed)", flush=True)
+        elif have.get("detections") != want["detections"] or meta.get("frontend_revision", 1) != FRONTEND_REVISION:
+            print(f"re-simulating detections of seed {seed} (front-end config or revision changed)", flush=True)
             redetect(root, cfg)
         roots.append(root)
     return roots

@@ -26,7 +26,7 @@ from egograph.io.calibration import PV_SHAPE, write_ahat_calibration, write_pv_c
 from egograph.io.detections import Detection, write_detection_dir
 from egograph.io.poses import write_pose_json
 from egograph.synth.config import SynthConfig
-from egograph.synth.frontend import SOURCE_TRUE, FrameView, FrontEnd
+from egograph.synth.frontend import FRONTEND_REVISION, SOURCE_TRUE, FrameView, FrontEnd
 from egograph.synth.scene import Scene, hololens_mesh, make_scene, box_mesh
 from egograph.synth.sensors import (Textures, ahat_camera_rays, build_raycasting_scene, cast, make_calibration,
                                     object_world_vertices, pose_errors, pv_camera_rays, shade_hits, simulate_ahat)
@@ -160,12 +160,11 @@ def simulate_detections(cfg: SynthConfig, seed: int, ts: np.ndarray, views: dict
     detections: dict[str, dict[int, list[Detection]]] = {}
     truth: dict[str, list[str]] = {}
     for name in ("svoe", "mvpe"):
-        fe = FrontEnd(np.random.default_rng(streams[STREAMS.index(name)]), getattr(cfg.detections, name),
-                      views["twins"], PV_SHAPE)
+        fe = FrontEnd(streams[STREAMS.index(name)], getattr(cfg.detections, name), views["twins"], PV_SHAPE)
         detections[name], truth[name] = {}, []
         for i, t in enumerate(ts):
             view = FrameView(views["visible"][i], views["boxes"][i], views["motion_dps"][i], views["clutter_boxes"][i])
-            cands = fe.frame(view)
+            cands = fe.frame(view, i)
             detections[name][int(t)] = [Detection(c.instance, Box(*map(float, c.box)), c.score) for c in cands]
             truth[name] += [f"{t} {c.instance} {int(c.source != SOURCE_TRUE)} {c.source} {c.source_id}" for c in cands]
     return detections, truth
@@ -195,6 +194,7 @@ def redetect(root: str | Path, cfg: SynthConfig) -> dict[str, int]:
     detections, truth = simulate_detections(cfg, seed, ts, views)
     write_detection_sets(root, seq, detections, truth)
     meta["config"]["detections"] = to_dict(cfg.detections)
+    meta["frontend_revision"] = FRONTEND_REVISION
     atomic_write_text(root / "recording.json", json.dumps(meta, indent=1))
     return {k: sum(len(v) for v in d.values()) for k, d in detections.items()}
 
@@ -375,6 +375,7 @@ def _write_outputs(tmp: Path, cfg: SynthConfig, seed: int, scene: Scene, traj: T
     }
     (gt / "scene.json").write_text(json.dumps(meta, indent=1))
     (tmp / "recording.json").write_text(json.dumps({
-        "generator": "egograph.synth", "version": __version__, "revision": GENERATOR_REVISION, "seed": seed, "sequence": seq,
+        "generator": "egograph.synth", "version": __version__, "revision": GENERATOR_REVISION,
+        "frontend_revision": FRONTEND_REVISION, "seed": seed, "sequence": seq,
         "frames": cfg.frames, "detection_sets": sorted(detections), "primary_detections": cfg.detections.primary,
         "config": to_dict(cfg)}, indent=1))
