@@ -158,7 +158,6 @@ def test_frontend_common_random_numbers():
     from egograph.synth.config import FrontEndConfig
     from egograph.synth.frontend import FrameView, FrontEnd
 
-    rng = np.random.default_rng(3)
     k, c = 4, 3
     twins = np.array([1, 0, -1, -1])
     base = FrontEndConfig(detect_rate=0.7, clutter_rate=0.5, clutter_score=[0.6, 0.08])

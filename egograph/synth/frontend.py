@@ -96,6 +96,7 @@ class FrontEnd:
         self.match_mean, self.match_std = mean, std
 
     def frame_rng(self, index: int) -> np.random.Generator:
+        """The generator of frame ``index``: a child of the stream's seed, independent of other frames."""
         child = np.random.SeedSequence(self.seed.entropy, spawn_key=tuple(self.seed.spawn_key) + (index,),
                                        pool_size=self.seed.pool_size)
         return np.random.default_rng(child)
