@@ -39,6 +39,7 @@ def rgb_set(seeds: list[int], frames: int, overrides: list[str]) -> list[Path]:
     """Cached recordings with PV RGB (slow to generate: about 3 frames/s)."""
     from egograph.config import load_config, to_dict
     from egograph.synth.config import SynthConfig
+    from benchset import rendered_config
     from egograph.synth.generate import GENERATOR_REVISION, generate
 
     cfg = load_config(SynthConfig, REPO / "configs" / "synth" / "svoe.yaml", [f"frames={frames}", *overrides])
@@ -48,9 +49,8 @@ def rgb_set(seeds: list[int], frames: int, overrides: list[str]) -> list[Path]:
         root = REPO / ".cache" / "bench_rgb" / f"f{frames}{'_' + tag if tag else ''}" / f"seed{seed}"
         meta = root / "recording.json"
         # Refinement never reads the detections: a front-end change does not re-render the set.
-        strip = lambda d: {k: v for k, v in d.items() if k != "detections"}  # noqa: E731
         ok = meta.exists() and json.loads(meta.read_text()).get("revision") == GENERATOR_REVISION \
-            and strip(json.loads(meta.read_text())["config"]) == strip(to_dict(cfg))
+            and rendered_config(json.loads(meta.read_text())["config"]) == rendered_config(to_dict(cfg))
         if not ok:
             print(f"generating RGB benchmark recording seed {seed} ({frames} frames) -> {root}", flush=True)
             generate(root, cfg, seed=seed, progress=True)

@@ -18,6 +18,11 @@ REPO = Path(__file__).resolve().parents[1]
 DEFAULT_CACHE = REPO / ".cache" / "bench"
 
 
+def rendered_config(config: dict) -> dict:
+    """A recording's config without its detection front-ends: what re-rendering depends on."""
+    return {k: v for k, v in config.items() if k != "detections"}
+
+
 def benchmark_set(seeds: list[int], frames: int, config: str | Path = REPO / "configs" / "synth" / "svoe.yaml",
                   overrides: list[str] = (), cache: Path = DEFAULT_CACHE, progress: bool = True) -> list[Path]:
     cfg = load_config(SynthConfig, config, [f"frames={frames}", "pv.rgb=false", *overrides])
@@ -29,9 +34,8 @@ def benchmark_set(seeds: list[int], frames: int, config: str | Path = REPO / "co
         meta_path = root / "recording.json"
         meta = json.loads(meta_path.read_text()) if meta_path.exists() else None
         have = meta["config"] if meta else None
-        strip = lambda d: {k: v for k, v in d.items() if k != "detections"}  # noqa: E731
         if meta is None or meta.get("seed") != seed or meta.get("revision") != GENERATOR_REVISION \
-                or strip(have) != strip(want):
+                or rendered_config(have) != rendered_config(want):
             print(f"generating benchmark recording seed {seed} ({frames} frames) -> {root}", flush=True)
             generate(root, cfg, seed=seed, progress=progress)
         elif have.get("detections") != want["detections"] or meta.get("frontend_revision", 1) != FRONTEND_REVISION:
