@@ -8,7 +8,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from egograph.config import load_config
+from egograph.core.config import load_config
 from egograph.io.poses import read_pose_json, write_pose_json
 from egograph.synth.config import SynthConfig
 from egograph.synth.generate import generate

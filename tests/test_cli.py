@@ -2,10 +2,10 @@
 
 import json
 
+from conftest import TINY
+
 from egograph.cli import main
 from egograph.io.recording import Recording
-
-from conftest import TINY
 
 
 def test_synth_and_info(tmp_path, capsys):

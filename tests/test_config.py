@@ -2,7 +2,8 @@
 
 import pytest
 
-from egograph.config import ConfigError, describe, load_config
+from egograph.core.config import describe, load_config
+from egograph.core.errors import ConfigError
 from egograph.synth.config import SynthConfig
 
 

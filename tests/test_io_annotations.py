@@ -6,9 +6,10 @@ from pathlib import Path
 
 import pytest
 
+from egograph.core.errors import InputError
+from egograph.core.types import Box
 from egograph.io.annotations import (
     Annotations,
-    Box,
     CenterAnnotation,
     MotionInterval,
     SvoeEnrollment,
@@ -28,7 +29,6 @@ from egograph.io.annotations import (
     write_motion_states,
     write_svoe,
 )
-from egograph.io.errors import InputError
 from egograph.io.textio import iter_rows, parse_float, parse_int, split_fields
 
 T0 = 133_456_789_012_345_678  # an 18-digit HoloLens timestamp (100 ns ticks)

@@ -7,10 +7,9 @@ from pathlib import Path
 
 import pytest
 
-from egograph.io.annotations import Box
+from egograph.core.errors import InputError
+from egograph.core.types import Box, Detection, Prediction
 from egograph.io.detections import (
-    Detection,
-    Prediction,
     read_detection_dir,
     read_detection_file,
     read_results_dir,
@@ -20,7 +19,6 @@ from egograph.io.detections import (
     write_results_dir,
     write_results_file,
 )
-from egograph.io.errors import InputError
 
 T0 = 133_456_789_012_345_678  # an 18-digit HoloLens timestamp (100 ns ticks)
 

@@ -8,11 +8,20 @@ from types import SimpleNamespace
 import numpy as np
 import pytest
 
+from egograph.core.types import Box, Detection
 from egograph.geometry import hl2ss as g
-from egograph.geometry.lift import (LiftConfig, alias_shifts, box_reach, lift_recording, nearest_dominant_cluster,
-                                    prefetched, shrink_box, synth_lift_errors, write_lifted_dir)
-from egograph.io.annotations import Box
-from egograph.io.detections import Detection, read_detection_dir, read_results_dir
+from egograph.geometry.config import LiftConfig
+from egograph.geometry.lift import (
+    alias_shifts,
+    box_reach,
+    lift_recording,
+    nearest_dominant_cluster,
+    prefetched,
+    shrink_box,
+    synth_lift_errors,
+    write_lifted_dir,
+)
+from egograph.io.detections import read_detection_dir, read_results_dir
 from egograph.io.poses import read_pose_json
 from egograph.io.recording import Recording
 

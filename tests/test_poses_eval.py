@@ -8,8 +8,8 @@ import numpy as np
 import pytest
 
 from egograph.cli import main
+from egograph.core.errors import InputError
 from egograph.geometry.hl2ss import rigid_from_rt
-from egograph.io.errors import InputError
 from egograph.poses.evaluate import evaluate_trajectory, match_timestamps, umeyama_se3
 from egograph.poses.tum import read_tum, write_tum
 

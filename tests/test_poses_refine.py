@@ -6,13 +6,12 @@ import json
 
 import numpy as np
 import pytest
-
 from conftest import copy_with_pose_error, no_pose_error, sequence_dir, true_poses
 
 from egograph.cli import main
-from egograph.config import load_config
+from egograph.core.config import load_config
+from egograph.core.errors import InputError
 from egograph.geometry.hl2ss import invert_rigid
-from egograph.io.errors import InputError
 from egograph.io.poses import read_pose_json, write_pose_json
 from egograph.io.recording import Recording
 from egograph.poses.config import RefineConfig

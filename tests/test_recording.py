@@ -6,8 +6,8 @@ import shutil
 import numpy as np
 import pytest
 
+from egograph.core.errors import InputError
 from egograph.io.calibration import find_calibration_dir, read_ahat_calibration
-from egograph.io.errors import InputError
 from egograph.io.recording import Recording, find_sequence_dir
 
 

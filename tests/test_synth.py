@@ -6,14 +6,13 @@ import json
 import cv2
 import numpy as np
 import pytest
+from conftest import make_recording
 
 from egograph.io.annotations import load_annotations, read_mvpe_photos
 from egograph.io.detections import read_detection_dir
 from egograph.io.poses import read_pose_json
 from egograph.io.recording import Recording
 from egograph.poses.metrics import pose_differences
-
-from conftest import make_recording
 
 
 def tree_digest(root):
@@ -186,11 +185,11 @@ def test_frontend_common_random_numbers():
 
 
 def test_redetect_reproduces_and_changes_only_detections(tmp_path):
-    from egograph.config import load_config
+    from conftest import TINY
+
+    from egograph.core.config import load_config
     from egograph.synth.config import SynthConfig
     from egograph.synth.generate import redetect
-
-    from conftest import TINY
 
     root = make_recording(tmp_path / "r", 5, "frames=40", "pv.rgb=false", "mvpe_photo_size=32")
     before = tree_digest(root)

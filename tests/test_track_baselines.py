@@ -5,10 +5,11 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from egograph.config import describe, load_config
+from egograph.core.config import describe, load_config
 from egograph.geometry.observations import Observations
 from egograph.io.detections import read_results_dir, write_results_dir
-from egograph.track.baselines import TRACKERS, BaselineConfig, kalman_tracker, memory_tracker
+from egograph.track.baselines import TRACKERS, kalman_tracker, memory_tracker
+from egograph.track.config import BaselineConfig
 
 T0 = 133_456_789_012_345_678  # an 18-digit HoloLens timestamp (100 ns ticks)
 FRAME = 333_333               # 30 fps in ticks

@@ -8,7 +8,8 @@ import numpy as np
 import pytest
 
 from egograph.geometry.observations import Observations
-from egograph.track.graph import GraphConfig, graph_tracker
+from egograph.track.config import GraphConfig
+from egograph.track.graph import graph_tracker
 
 T0 = 133_400_000_000_000_000
 FRAME = 333_333  # 30 fps in 100 ns ticks

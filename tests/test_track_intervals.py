@@ -5,10 +5,11 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from egograph.io.detections import Prediction
-from egograph.io.errors import InputError
-from egograph.track.graph import GraphConfig, graph_tracker
-from egograph.track.intervals import PositionInterval, per_frame_predictions, read_intervals_json, write_intervals_json
+from egograph.core.errors import InputError
+from egograph.core.types import PositionInterval, Prediction
+from egograph.track.config import GraphConfig
+from egograph.track.graph import graph_tracker
+from egograph.track.intervals import per_frame_predictions, read_intervals_json, write_intervals_json
 from egograph.track.smooth import predictions_to_observations
 
 T0, FRAME = 133_400_000_000_000_000, 333_333

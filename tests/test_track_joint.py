@@ -6,18 +6,17 @@ import dataclasses
 
 import numpy as np
 import pytest
-
 from conftest import copy_with_pose_error, true_poses
 
 from egograph.cli import main
-from egograph.config import load_config
+from egograph.core.config import load_config
 from egograph.geometry.lift import lift_recording
 from egograph.io.annotations import load_annotations
 from egograph.io.poses import read_pose_json
-from egograph.pipeline import lift, open_recording, regt_estimates, track_graph, track_graph_joint
 from egograph.poses.evaluate import evaluate_trajectory
 from egograph.poses.refine import hololens_constraints, world_corrections
-from egograph.settings import EgographConfig
+from egograph.steps.pipeline import lift, open_recording, regt_estimates, track_graph, track_graph_joint
+from egograph.steps.settings import EgographConfig
 from egograph.track.intervals import read_intervals_json
 from egograph.track.joint import move_observations, unmove_points
 from egograph.track.regt import box_detections, interval_stands

@@ -5,10 +5,11 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from egograph.config import load_config
-from egograph.pipeline import lift, open_recording
-from egograph.settings import EgographConfig
-from egograph.track.negative import NegativeConfig, NegativeEvidence
+from egograph.core.config import load_config
+from egograph.steps.pipeline import lift, open_recording
+from egograph.steps.settings import EgographConfig
+from egograph.track.config import NegativeConfig
+from egograph.track.negative import NegativeEvidence
 
 
 @pytest.fixture(scope="module")

@@ -7,7 +7,13 @@ import numpy as np
 import pytest
 
 from egograph.track.switchable import (
-    dcs_between, dcs_phi, dcs_switch_value, switch_clipped, switch_prior, switch_weight, switchable_between,
+    dcs_between,
+    dcs_phi,
+    dcs_switch_value,
+    switch_clipped,
+    switch_prior,
+    switch_weight,
+    switchable_between,
 )
 
 A, B, SW = gtsam.symbol("l", 0), gtsam.symbol("l", 1), gtsam.symbol("s", 1)

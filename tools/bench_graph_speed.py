@@ -25,12 +25,15 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 from bench_trackers import REPO, cache_key  # noqa: E402
 from benchset import DEFAULT_CACHE  # noqa: E402
 
-from egograph.config import load_config  # noqa: E402
-from egograph.settings import EgographConfig  # noqa: E402
-
+from egograph.core.config import load_config  # noqa: E402
 from egograph.geometry.observations import Observations  # noqa: E402
-from egograph.track.baselines import BaselineConfig, kalman_tracker  # noqa: E402
-from egograph.track.graph import GraphConfig, graph_tracker  # noqa: E402
+from egograph.steps.settings import EgographConfig  # noqa: E402
+from egograph.track.baselines import kalman_tracker  # noqa: E402
+from egograph.track.config import (
+    BaselineConfig,  # noqa: E402
+    GraphConfig,  # noqa: E402
+)
+from egograph.track.graph import graph_tracker  # noqa: E402
 
 T0 = 133_400_000_000_000_000
 FRAME = 333_333

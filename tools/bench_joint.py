@@ -33,13 +33,13 @@ from bench_trackers import cache_key  # noqa: E402
 from benchset import DEFAULT_CACHE, benchmark_set  # noqa: E402
 from graph_extras import gt_intervals, score  # noqa: E402
 
-from egograph.config import load_config  # noqa: E402
+from egograph.core.config import load_config  # noqa: E402
 from egograph.geometry.observations import Observations  # noqa: E402
 from egograph.io.poses import read_pose_json  # noqa: E402
-from egograph.pipeline import lift, open_recording, track_graph, track_graph_joint  # noqa: E402
 from egograph.poses.evaluate import evaluate_trajectory  # noqa: E402
 from egograph.poses.refine import refinement_factors, world_corrections  # noqa: E402
-from egograph.settings import EgographConfig  # noqa: E402
+from egograph.steps.pipeline import lift, open_recording, track_graph, track_graph_joint  # noqa: E402
+from egograph.steps.settings import EgographConfig  # noqa: E402
 from egograph.track.joint import joint_poses, move_observations, with_joint_poses  # noqa: E402
 
 REPO = Path(__file__).resolve().parents[1]

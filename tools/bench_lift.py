@@ -24,7 +24,8 @@ from pathlib import Path
 
 import numpy as np
 
-from egograph.geometry.lift import LiftConfig, lift_recording, synth_lift_errors
+from egograph.geometry.config import LiftConfig
+from egograph.geometry.lift import lift_recording, synth_lift_errors
 from egograph.io.detections import read_detection_dir
 from egograph.io.poses import read_pose_json
 from egograph.io.recording import Recording

@@ -37,9 +37,10 @@ ROWS = {
 
 def rgb_set(seeds: list[int], frames: int, overrides: list[str]) -> list[Path]:
     """Cached recordings with PV RGB (slow to generate: about 3 frames/s)."""
-    from egograph.config import load_config, to_dict
-    from egograph.synth.config import SynthConfig
     from benchset import rendered_config
+
+    from egograph.core.config import load_config, to_dict
+    from egograph.synth.config import SynthConfig
     from egograph.synth.generate import GENERATOR_REVISION, generate
 
     cfg = load_config(SynthConfig, REPO / "configs" / "synth" / "svoe.yaml", [f"frames={frames}", *overrides])
@@ -85,7 +86,7 @@ def exact_mirror(root: Path) -> Path:
 
 
 def run(root: Path, rows: list[str], extra: list[str], rpe_delta: int, out_dir: Path | None = None) -> list[dict]:
-    from egograph.config import load_config
+    from egograph.core.config import load_config
     from egograph.io.poses import read_pose_json
     from egograph.io.recording import Recording
     from egograph.poses.config import RefineConfig

@@ -26,15 +26,15 @@ import numpy as np
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 from benchset import DEFAULT_CACHE, benchmark_set  # noqa: E402
 
-from egograph.config import load_config, to_dict  # noqa: E402
+from egograph.core.config import load_config, to_dict  # noqa: E402
 from egograph.geometry.lift import lift_recording  # noqa: E402
 from egograph.geometry.observations import Observations  # noqa: E402
 from egograph.io.annotations import load_annotations  # noqa: E402
 from egograph.io.poses import read_pose_json  # noqa: E402
-from egograph.pipeline import open_recording, regt_estimates  # noqa: E402
 from egograph.poses.evaluate import evaluate_trajectory  # noqa: E402
 from egograph.poses.refine import apply_poses, world_corrections  # noqa: E402
-from egograph.settings import EgographConfig  # noqa: E402
+from egograph.steps.pipeline import open_recording, regt_estimates  # noqa: E402
+from egograph.steps.settings import EgographConfig  # noqa: E402
 from egograph.track.joint import move_observations  # noqa: E402
 from egograph.track.regt import box_detections, reestimate_centres  # noqa: E402
 

@@ -13,7 +13,7 @@ import tempfile
 import time
 from pathlib import Path
 
-from egograph.config import load_config
+from egograph.core.config import load_config
 from egograph.io.recording import Recording
 from egograph.synth.config import SynthConfig
 from egograph.synth.generate import generate

@@ -28,18 +28,16 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 from benchset import DEFAULT_CACHE, benchmark_set  # noqa: E402
+from graph_extras import observable_intervals, oracle, print_graph_targets, score, smooth_results  # noqa: E402
 
-from egograph.config import load_config, to_dict  # noqa: E402
+from egograph.core.config import load_config, to_dict  # noqa: E402
 from egograph.eval.report import EvalReport, comparison_table, plot_pr  # noqa: E402
 from egograph.geometry.lift import synth_lift_errors  # noqa: E402
 from egograph.geometry.observations import Observations  # noqa: E402
 from egograph.io.atomic import atomic_write_text  # noqa: E402
 from egograph.poses.refine import apply_poses  # noqa: E402
-from egograph.pipeline import (  # noqa: E402
-    GRAPH_TRACKERS, lift, open_recording, track, track_graph,
-)
-from graph_extras import observable_intervals, oracle, print_graph_targets, score, smooth_results  # noqa: E402
-from egograph.settings import EgographConfig  # noqa: E402
+from egograph.steps.pipeline import GRAPH_TRACKERS, lift, open_recording, track, track_graph
+from egograph.steps.settings import EgographConfig  # noqa: E402
 
 REPO = Path(__file__).resolve().parents[1]
 BANDS = {  # memory + reference lifting must land here (issue: calibration of the synthetic front-end)

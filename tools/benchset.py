@@ -9,7 +9,7 @@ from __future__ import annotations
 import json
 from pathlib import Path
 
-from egograph.config import load_config, to_dict
+from egograph.core.config import load_config, to_dict
 from egograph.synth.config import SynthConfig
 from egograph.synth.frontend import FRONTEND_REVISION
 from egograph.synth.generate import GENERATOR_REVISION, generate, redetect

@@ -11,17 +11,16 @@ from pathlib import Path
 
 import numpy as np
 
-from egograph.config import to_dict
+from egograph.core.config import to_dict
+from egograph.core.types import Box, Detection, PositionInterval
 from egograph.eval.intervals import intervals_from_predictions, score_intervals
 from egograph.eval.loader import load_gt_intervals, load_predictions
 from egograph.eval.report import EvalReport
 from egograph.geometry.lift import lift_recording, synth_lift_errors
 from egograph.geometry.observations import Observations
-from egograph.io.annotations import Box
-from egograph.io.detections import Detection
-from egograph.pipeline import evaluate, write_results
+from egograph.steps.pipeline import evaluate, write_results
 from egograph.track.graph import fixed_interval_estimate
-from egograph.track.intervals import PositionInterval, per_frame_predictions
+from egograph.track.intervals import per_frame_predictions
 from egograph.track.smooth import smooth_predictions
 
 NEES_MATCH_M = 0.25  # intervals farther than this from their GT are wrong places, not covariance failures

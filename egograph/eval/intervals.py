@@ -22,11 +22,11 @@ from typing import Iterable, Mapping, Sequence
 
 import numpy as np
 
+from egograph.core.units import TICKS_PER_SECOND
 from egograph.eval.protocol import GtInterval
 
 RECOVER_RADIUS = 0.25  # metres
 RECOVER_TIOU = 0.5  # temporal IoU over frame index sets
-TICKS_PER_SECOND = 1e7  # HoloLens timestamps are 100 ns ticks
 
 
 @dataclass(frozen=True)

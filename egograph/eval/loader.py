@@ -17,12 +17,12 @@ from typing import Iterable, Sequence
 
 import numpy as np
 
+from egograph.core.errors import InputError
 from egograph.eval.intervals import IntervalScore, PredictedInterval, intervals_from_predictions, score_intervals
 from egograph.eval.protocol import THRESHOLDS, GtInterval, SequenceResult, evaluate_sequence
 from egograph.geometry.hl2ss import camera_center
 from egograph.io.annotations import LABELS_FILE, read_centers, read_labels
 from egograph.io.detections import read_results_dir
-from egograph.io.errors import InputError
 from egograph.io.poses import read_pose_json
 from egograph.io.textio import listed_files
 

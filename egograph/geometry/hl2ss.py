@@ -19,6 +19,8 @@ from __future__ import annotations
 
 import numpy as np
 
+from egograph.io.poses import pose_validity  # noqa: F401  (hl2ss pose convention; defined with the pose reader)
+
 INVALID_RAW = 0  # AHAT raw value of a pixel with no return
 
 
@@ -63,21 +65,6 @@ def rigid_from_rt(rotation: np.ndarray, translation: np.ndarray) -> np.ndarray:
     return m
 
 
-def pose_validity(poses: np.ndarray, tol: float = 1e-3) -> np.ndarray:
-    """Which 4x4 poses (N, 4, 4) are usable: finite, ``M[3,3] == 1``, orthonormal rotation.
-
-    hl2ss writes ``M[3,3] == 0`` for frames without tracking; such poses are singular.
-    """
-    p = np.asarray(poses, dtype=np.float64)
-    finite = np.isfinite(p).all(axis=(-1, -2))
-    safe = np.where(finite[..., None, None], p, 0.0)
-    r = safe[..., :3, :3]
-    rrt = np.einsum("...ij,...kj->...ik", r, r)
-    ortho = np.abs(rrt - np.eye(3)).max(axis=(-1, -2)) < tol
-    det_ok = np.abs(np.linalg.det(r) - 1.0) < tol
-    last_col = np.abs(safe[..., :3, 3]).max(axis=-1) < tol
-    homog = np.abs(safe[..., 3, 3] - 1.0) < tol
-    return finite & ortho & det_ok & last_col & homog
 
 
 def camera_center(pose: np.ndarray) -> np.ndarray:

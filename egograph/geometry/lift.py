@@ -58,7 +58,7 @@ import math
 import time
 from collections import deque
 from concurrent.futures import ThreadPoolExecutor
-from dataclasses import dataclass, field, fields
+from dataclasses import dataclass, field
 from itertools import islice
 from pathlib import Path
 from typing import Callable, Iterator, Mapping, Sequence, TypeVar
@@ -66,84 +66,30 @@ from typing import Callable, Iterator, Mapping, Sequence, TypeVar
 import numpy as np
 from tqdm import tqdm
 
-from egograph.config import knob
-from egograph.geometry.hl2ss import (INVALID_RAW, ahat_project, ahat_ray_norms, ahat_to_pv_image_static,
-                                     ahat_to_world_matrix, invert_rigid, pose_validity, pv_unproject,
-                                     transform_points)
+from egograph.core.types import Box, Detection, Prediction
+from egograph.geometry.config import MIN_RANGE_M, LiftConfig
+from egograph.geometry.hl2ss import (
+    INVALID_RAW,
+    ahat_project,
+    ahat_ray_norms,
+    ahat_to_pv_image_static,
+    ahat_to_world_matrix,
+    invert_rigid,
+    pose_validity,
+    pv_unproject,
+    transform_points,
+)
 from egograph.geometry.observations import Observations
-from egograph.io.annotations import Box
-from egograph.io.detections import Detection, Prediction, write_results_dir
+from egograph.io.detections import write_results_dir
 
 T = TypeVar("T")
 
-MODES = ("robust", "reference")
-REGISTRATIONS = ("posed", "static")
-MIN_RANGE_M = 0.1          # AHAT returns closer than this are not physical (the visor)
 REGION_NEAR_M = 0.2        # nearest depth (in front of the PV camera) an object box is searched at
 WORLD_UP = np.array([0.0, 1.0, 0.0], np.float32)  # HoloLens world frames are gravity aligned, y up
 REGION_PAD_PX = 2          # AHAT pixels added around the searched rectangle (pixel footprint, rounding)
 MAX_PINHOLE_RESIDUAL_PX = 32.0  # beyond this the pinhole intrinsics are useless: search the whole frame
 
 
-@dataclass
-class LiftConfig:
-    """How 2D detections become 3D observations (``egograph lift``)."""
-
-    mode: str = knob("robust", "'robust' (mesh-unwrapped, clustered box depth) or 'reference' "
-                               "(the IT3DEgo reference code's single-pixel rule, static rig, no unwrapping)")
-    registration: str = knob("posed", "robust mode's AHAT -> PV registration: 'posed' (per-frame poses, "
-                                      "follows head motion between the sensors' capture times) or 'static' (rig "
-                                      "extrinsics, as the reference code); reference mode always uses static")
-    shrink: float = knob(0.5, "share of the box width and of its height kept around the box centre, 0-1 "
-                              "(the centre of a box is mostly object, its rim mostly background)")
-    cluster_gap_m: float = knob(0.05, "a jump of more than this between sorted pixel ranges starts a new "
-                                      "depth cluster, metres")
-    min_cluster_share: float = knob(0.2, "a depth cluster counts as dominant with at least this share of "
-                                         "the box's registered pixels, 0-1")
-    min_pixels: int = knob(3, "fewest AHAT pixels a dominant cluster needs (a 20 px PV box is ~5x5 AHAT "
-                              "pixels at the synthetic 4:1 focal ratio)")
-    surface_to_center_m: float = knob(0.03, "the visible-surface centroid is pushed back along its ray by "
-                                            "this typical half-depth of a small object, metres")
-    max_range_m: float = knob(5.5, "alias candidates beyond this range from the depth camera are dropped, metres")
-    max_object_size_m: float = knob(0.45, "largest plausible object extent, metres: robust mode unwraps no pixel "
-                                          "to a range at which the box would hold a larger object (extent about "
-                                          "box side / focal x range); keeps objects carried near the eye from "
-                                          "being unwrapped onto the wall behind them; raise it for large instances")
-    hand_reach_m: float = knob(0.8, "robust mode: a mesh-unwrapped point beyond this range with no mesh surface "
-                                     "within max_support_gap_m below it is taken for a carried object, and the "
-                                     "box is lifted again with unwrapping capped here, metres (0 = off)")
-    max_support_gap_m: float = knob(0.35, "a resting object's centre is at most this far above the surface "
-                                          "holding it (half its height plus mesh noise), metres")
-    use_mesh: bool = knob(True, "resolve the AHAT alias per pixel with the recording's HoloLens mesh; "
-                                "false (or no mesh) takes the wrapped range as read (k = 0)")
-    mesh_slack_m: float = knob(0.15, "per pixel, take the largest candidate r + k*alias not beyond the "
-                                     "mesh range plus this slack, metres (objects rest on or in front of "
-                                     "mesh surfaces; the slack covers mesh noise and pose drift; alias/2 "
-                                     "gives the candidate nearest to the mesh)")
-    n_candidates: int = knob(6, "alias candidates kept per observation, K (6 covers (0.1, 5.5] m at a "
-                                "0.999 m alias)")
-    decode_threads: int = knob(2, "threads decoding depth PNGs ahead of the lifting loop; OpenCV releases "
-                                  "the GIL while decoding, and robust lifting is bound by the decode, so 2 "
-                                  "uses both cores of a small machine (does not change the observations)")
-
-    def result_knobs(self) -> dict:
-        """The knobs the observations depend on (cache keys): all but ``decode_threads``."""
-        return {f.name: getattr(self, f.name) for f in fields(self) if f.name != "decode_threads"}
-
-    def check(self) -> None:
-        """Raise ValueError on a value the lift cannot use."""
-        if self.mode not in MODES:
-            raise ValueError(f"lift.mode {self.mode!r}: expected one of {', '.join(MODES)}")
-        if self.registration not in REGISTRATIONS:
-            raise ValueError(f"lift.registration {self.registration!r}: expected one of {', '.join(REGISTRATIONS)}")
-        if not 0.0 < self.shrink <= 1.0:
-            raise ValueError(f"lift.shrink {self.shrink}: expected 0 < shrink <= 1")
-        if not 0.0 <= self.min_cluster_share <= 1.0:
-            raise ValueError(f"lift.min_cluster_share {self.min_cluster_share}: expected 0-1")
-        if self.min_pixels < 1 or self.n_candidates < 1 or self.decode_threads < 1:
-            raise ValueError("lift.min_pixels, lift.n_candidates and lift.decode_threads must be >= 1")
-        if self.cluster_gap_m <= 0 or self.max_range_m <= MIN_RANGE_M or self.max_object_size_m <= 0:
-            raise ValueError("lift.cluster_gap_m and lift.max_object_size_m must be > 0, lift.max_range_m > 0.1")
 
 
 # --------------------------------------------------------------------------- report
@@ -611,8 +557,8 @@ def _labels_count(rec, report: LiftReport) -> int | None:
     ann = getattr(rec, "annotation_dir", None)
     if ann is None or not (Path(ann) / "labels.csv").is_file():
         return None
+    from egograph.core.errors import InputError
     from egograph.io.annotations import read_labels
-    from egograph.io.errors import InputError
 
     try:
         return len(read_labels(Path(ann) / "labels.csv"))

@@ -13,8 +13,8 @@ from pathlib import Path
 
 import numpy as np
 
+from egograph.core.errors import InputError
 from egograph.io.atomic import atomic_path
-from egograph.io.errors import InputError
 
 
 @dataclass

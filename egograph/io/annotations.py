@@ -27,11 +27,11 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Iterable, Mapping, Sequence
 
-from egograph.io.atomic import atomic_write_text, format_number
-from egograph.io.errors import InputError
+from egograph.core.errors import InputError
+from egograph.core.types import Box
+from egograph.core.values import as_finite, as_int, check_instance_id, format_number
+from egograph.io.atomic import atomic_write_text
 from egograph.io.textio import (
-    as_finite,
-    as_int,
     int_stem,
     iter_lines,
     iter_rows,
@@ -58,70 +58,9 @@ _PHOTO_SUFFIXES = {".jpg", ".jpeg"}
 # --------------------------------------------------------------------------- records
 
 
-@dataclass(frozen=True, slots=True)
-class Box:
-    """Axis-aligned image box in pixels: ``x_min <= x_max``, ``y_min <= y_max``, finite."""
-
-    x_min: float
-    y_min: float
-    x_max: float
-    y_max: float
-
-    def __post_init__(self) -> None:
-        for name in ("x_min", "y_min", "x_max", "y_max"):
-            object.__setattr__(self, name, as_finite(getattr(self, name), f"box {name}"))
-        if self.x_max < self.x_min:
-            raise ValueError(f"box x_max {format_number(self.x_max)} < x_min {format_number(self.x_min)}")
-        if self.y_max < self.y_min:
-            raise ValueError(f"box y_max {format_number(self.y_max)} < y_min {format_number(self.y_min)}")
-
-    @classmethod
-    def from_xywh(cls, x: float, y: float, w: float, h: float) -> Box:
-        """Box from top-left corner and size (pixels); negative sizes are refused."""
-        if w < 0 or h < 0:
-            raise ValueError(f"box width/height must not be negative, got w={w!r} h={h!r}")
-        return cls(x, y, x + w, y + h)
-
-    def to_xywh(self) -> tuple[float, float, float, float]:
-        """``(x_min, y_min, width, height)`` in pixels."""
-        return (self.x_min, self.y_min, self.width, self.height)
-
-    @property
-    def width(self) -> float:
-        return self.x_max - self.x_min
-
-    @property
-    def height(self) -> float:
-        return self.y_max - self.y_min
-
-    @property
-    def area(self) -> float:
-        return self.width * self.height
-
-    @property
-    def center(self) -> tuple[float, float]:
-        return (0.5 * (self.x_min + self.x_max), 0.5 * (self.y_min + self.y_max))
-
-    def clip(self, width: float, height: float) -> Box | None:
-        """The part inside the image ``[0, width] x [0, height]``; None if no area is left."""
-        x0, y0 = max(self.x_min, 0.0), max(self.y_min, 0.0)
-        x1, y1 = min(self.x_max, float(width)), min(self.y_max, float(height))
-        if x1 <= x0 or y1 <= y0:
-            return None
-        return Box(x0, y0, x1, y1)
-
-
 def _check_interval(t_start: int, t_end: int) -> None:
     if t_end < t_start:
         raise ValueError(f"t_end {t_end} is before t_start {t_start}")
-
-
-def check_instance_id(instance: int) -> int:
-    """An instance id as a non-negative int (ValueError/TypeError otherwise)."""
-    instance = as_int(instance, "instance id")
-    if instance < 0:
-        raise ValueError(f"instance id {instance} is negative")
-    return instance
 
 
 @dataclass(frozen=True, slots=True)

@@ -60,11 +60,3 @@ def atomic_dir(path: str | Path) -> Iterator[Path]:
     except BaseException:
         shutil.rmtree(tmp, ignore_errors=True)
         raise
-
-
-def format_number(x: float) -> str:
-    """Shortest text that reads back to the same float; integers without a decimal point."""
-    xf = float(x)
-    if xf.is_integer() and abs(xf) < 1e15:
-        return str(int(xf))
-    return repr(xf)

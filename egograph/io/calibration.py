@@ -15,8 +15,8 @@ from pathlib import Path
 
 import numpy as np
 
+from egograph.core.errors import InputError
 from egograph.io.atomic import atomic_write_bytes
-from egograph.io.errors import InputError
 
 AHAT_SHAPE = (512, 512)
 PV_SHAPE = (720, 1280)  # rows, columns

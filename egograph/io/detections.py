@@ -21,65 +21,17 @@ predicted.
 
 from __future__ import annotations
 
-from dataclasses import dataclass
 from pathlib import Path
 from typing import Callable, Iterable, Mapping, Sequence, TypeVar
 
-from egograph.io.annotations import (
-    Box,
-    box_fields,
-    box_layout,
-    check_box_format,
-    check_instance_id,
-    parse_box,
-)
-from egograph.io.atomic import atomic_write_text, format_number
-from egograph.io.errors import InputError
-from egograph.io.textio import (
-    as_finite,
-    as_int,
-    int_stem,
-    iter_rows,
-    listed_files,
-    make_record,
-    parse_float,
-    parse_int,
-    write_text_dir,
-)
+from egograph.core.errors import InputError
+from egograph.core.types import Detection, Prediction
+from egograph.core.values import as_int, check_instance_id, format_number
+from egograph.io.annotations import box_fields, box_layout, check_box_format, parse_box
+from egograph.io.atomic import atomic_write_text
+from egograph.io.textio import int_stem, iter_rows, listed_files, make_record, parse_float, parse_int, write_text_dir
 
 T = TypeVar("T")
-
-
-@dataclass(frozen=True, slots=True)
-class Detection:
-    """A 2D box (PV pixels) associated with ``instance``, with a finite ``score``."""
-
-    instance: int
-    box: Box
-    score: float
-
-    def __post_init__(self) -> None:
-        object.__setattr__(self, "instance", check_instance_id(self.instance))
-        if not isinstance(self.box, Box):
-            raise TypeError(f"box must be a Box, got {type(self.box).__name__}")
-        object.__setattr__(self, "score", as_finite(self.score, "score"))
-
-
-@dataclass(frozen=True, slots=True)
-class Prediction:
-    """Predicted centre of ``instance`` in the world frame (metres), with a finite ``score``."""
-
-    instance: int
-    xyz: tuple[float, float, float]
-    score: float
-
-    def __post_init__(self) -> None:
-        object.__setattr__(self, "instance", check_instance_id(self.instance))
-        values = tuple(self.xyz)
-        if len(values) != 3:
-            raise ValueError(f"xyz must have 3 values, got {len(values)}")
-        object.__setattr__(self, "xyz", tuple(as_finite(v, "xyz") for v in values))
-        object.__setattr__(self, "score", as_finite(self.score, "score"))
 
 
 # --------------------------------------------------------------------------- per-frame folders

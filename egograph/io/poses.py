@@ -8,9 +8,26 @@ from pathlib import Path
 
 import numpy as np
 
-from egograph.geometry.hl2ss import pose_validity
+from egograph.core.errors import InputError
 from egograph.io.atomic import atomic_write_text
-from egograph.io.errors import InputError
+
+
+def pose_validity(poses: np.ndarray, tol: float = 1e-3) -> np.ndarray:
+    """Which 4x4 poses (N, 4, 4) are usable: finite, ``M[3,3] == 1``, orthonormal rotation.
+
+    hl2ss writes ``M[3,3] == 0`` for frames without tracking; such poses are singular.
+    """
+    p = np.asarray(poses, dtype=np.float64)
+    finite = np.isfinite(p).all(axis=(-1, -2))
+    safe = np.where(finite[..., None, None], p, 0.0)
+    r = safe[..., :3, :3]
+    rrt = np.einsum("...ij,...kj->...ik", r, r)
+    ortho = np.abs(rrt - np.eye(3)).max(axis=(-1, -2)) < tol
+    det_ok = np.abs(np.linalg.det(r) - 1.0) < tol
+    last_col = np.abs(safe[..., :3, 3]).max(axis=-1) < tol
+    homog = np.abs(safe[..., 3, 3] - 1.0) < tol
+    return finite & ortho & det_ok & last_col & homog
+
 
 INVALID_POSE_POLICIES = ("error", "skip")
 

@@ -22,12 +22,16 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from egograph.io.calibration import (AhatCalibration, PvCalibration, find_calibration_dir,
-                                     read_ahat_calibration, read_pv_calibration)
-from egograph.io.errors import InputError
+from egograph.core.errors import InputError
+from egograph.core.units import TICKS_PER_SECOND
+from egograph.io.calibration import (
+    AhatCalibration,
+    PvCalibration,
+    find_calibration_dir,
+    read_ahat_calibration,
+    read_pv_calibration,
+)
 from egograph.io.poses import read_pose_json
-
-TICKS_PER_SECOND = 10_000_000  # HoloLens timestamps are 100 ns ticks
 
 
 def is_sequence_dir(path: Path) -> bool:

@@ -11,14 +11,13 @@ its 1-based line number.
 from __future__ import annotations
 
 import math
-import operator
 import re
 from decimal import Decimal
 from pathlib import Path
 from typing import Callable, Iterator, Mapping, TypeVar
 
+from egograph.core.errors import InputError
 from egograph.io.atomic import atomic_dir
-from egograph.io.errors import InputError
 
 T = TypeVar("T")
 
@@ -121,23 +120,6 @@ def make_record(path: str | Path, lineno: int | None, factory: Callable[..., T],
         raise
     except (ValueError, TypeError) as err:
         raise InputError(path, str(err), lineno) from None
-
-
-def as_int(value, what: str) -> int:
-    """An exact int from an int-like value (int, numpy integer); floats are refused
-    because a float cannot hold an 18-digit timestamp exactly."""
-    try:
-        return int(operator.index(value))
-    except TypeError:
-        raise TypeError(f"{what} must be an integer, got {value!r}") from None
-
-
-def as_finite(value, what: str) -> float:
-    """A finite float; NaN/inf would not read back."""
-    x = float(value)
-    if not math.isfinite(x):
-        raise ValueError(f"{what} must be finite, got {value!r}")
-    return x
 
 
 def int_stem(path: Path, what: str) -> int:

@@ -5,7 +5,8 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
-from egograph.config import ConfigError, knob
+from egograph.core.config import knob
+from egograph.core.errors import ConfigError
 
 
 @dataclass

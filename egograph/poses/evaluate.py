@@ -13,8 +13,8 @@ from pathlib import Path
 
 import numpy as np
 
+from egograph.core.errors import InputError
 from egograph.geometry.hl2ss import invert_rigid
-from egograph.io.errors import InputError
 
 
 @dataclass

@@ -14,6 +14,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from egograph.core.units import TICKS_PER_SECOND
 from egograph.poses.config import RefineConfig
 from egograph.poses.constraints import Constraints, ahat_offsets, invert_columns, pv_columns, sigmas
 from egograph.poses.mesh_icp import within
@@ -110,7 +111,7 @@ def kiss_constraints(rec, cfg: RefineConfig, points: AhatPointSource, pv_estimat
             continue
         z = invert_columns(prev[2]) @ cur                      # AHAT_i -> AHAT_j, measured
         a, b = prev[0], i
-        dt = max((rec.timestamps[b] - rec.timestamps[a]) / 1e7, 1e-3)
+        dt = max((rec.timestamps[b] - rec.timestamps[a]) / TICKS_PER_SECOND, 1e-3)
         prev = (i, ahat[i], cur)
         stats.registered += 1
         if not within(delta, np.inf, cfg.icp_max_turn_rate * dt):

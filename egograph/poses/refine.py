@@ -25,8 +25,9 @@ from pathlib import Path
 
 import numpy as np
 
+from egograph.core.errors import InputError
+from egograph.core.units import TICKS_PER_SECOND
 from egograph.geometry.hl2ss import invert_rigid
-from egograph.io.errors import InputError
 from egograph.poses.config import RefineConfig
 from egograph.poses.constraints import Constraints, pv_columns, sigmas
 
@@ -140,7 +141,7 @@ def hololens_constraints(rec, cfg: RefineConfig) -> list[Constraints]:
            Constraints("prior", "absolute", idx, none, eye, prior_sig, 0.0, key_i="w")]
     if n > 1:
         a, b = idx[:-1], idx[1:]
-        dt = np.maximum((rec.timestamps[b] - rec.timestamps[a]) / 1e7, 1e-3)
+        dt = np.maximum((rec.timestamps[b] - rec.timestamps[a]) / TICKS_PER_SECOND, 1e-3)
         sig = sigmas(cfg.drift_rot, cfg.drift_trans, n - 1) * np.sqrt(dt)[:, None]
         loose = jump_links(pv[a], pv[b], dt, cfg)
         if cfg.jump_sigma_trans > 0 and loose.any():
@@ -359,7 +360,7 @@ def pose_change(before_row: np.ndarray, after_row: np.ndarray) -> dict:
 def write_refined(result: RefineResult, out: str | Path, rec, cfg: RefineConfig, extra: dict | None = None) -> Path:
     """Write OUT/{pv_pose.json, depth_ahat_pose.json, pv_pose.tum, depth_ahat_pose.tum, report.json, report.md}
     atomically. Refuses to write into the recording's own folder."""
-    from egograph.config import to_dict
+    from egograph.core.config import to_dict
     from egograph.io.atomic import atomic_dir
     from egograph.io.poses import write_pose_json
     from egograph.poses.tum import write_tum

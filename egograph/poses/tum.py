@@ -11,11 +11,10 @@ from pathlib import Path
 
 import numpy as np
 
+from egograph.core.errors import InputError
+from egograph.core.units import TICKS_PER_SECOND
 from egograph.geometry.hl2ss import rigid_from_rt
 from egograph.io.atomic import atomic_write_text
-from egograph.io.errors import InputError
-
-TICKS_PER_SECOND = 10_000_000
 
 
 def quat_from_matrix(r: np.ndarray) -> np.ndarray:

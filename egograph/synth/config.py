@@ -5,7 +5,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
-from egograph.config import knob, section
+from egograph.core.config import knob, section
 
 
 @dataclass

@@ -17,19 +17,29 @@ import numpy as np
 from tqdm import tqdm
 
 from egograph import __version__
-from egograph.config import to_dict
+from egograph.core.config import to_dict
+from egograph.core.types import Box, Detection
 from egograph.geometry.hl2ss import invert_rigid, pv_project, transform_points
-from egograph.io.annotations import (Annotations, Box, CenterAnnotation, MotionInterval, SvoeEnrollment,
-                                     save_annotations)
+from egograph.io.annotations import Annotations, CenterAnnotation, MotionInterval, SvoeEnrollment, save_annotations
 from egograph.io.atomic import atomic_dir, atomic_write_text
 from egograph.io.calibration import PV_SHAPE, write_ahat_calibration, write_pv_calibration
-from egograph.io.detections import Detection, write_detection_dir
+from egograph.io.detections import write_detection_dir
 from egograph.io.poses import write_pose_json
 from egograph.synth.config import SynthConfig
 from egograph.synth.frontend import FRONTEND_REVISION, SOURCE_TRUE, FrameView, FrontEnd
-from egograph.synth.scene import Scene, hololens_mesh, make_scene, box_mesh
-from egograph.synth.sensors import (Textures, ahat_camera_rays, build_raycasting_scene, cast, make_calibration,
-                                    object_world_vertices, pose_errors, pv_camera_rays, shade_hits, simulate_ahat)
+from egograph.synth.scene import Scene, box_mesh, hololens_mesh, make_scene
+from egograph.synth.sensors import (
+    Textures,
+    ahat_camera_rays,
+    build_raycasting_scene,
+    cast,
+    make_calibration,
+    object_world_vertices,
+    pose_errors,
+    pv_camera_rays,
+    shade_hits,
+    simulate_ahat,
+)
 from egograph.synth.trajectory import Trajectory, make_trajectory
 
 TS0 = 133_400_000_000_000_000  # a HoloLens-like 100 ns tick count (2023)

@@ -9,8 +9,13 @@ from dataclasses import dataclass
 import numpy as np
 import open3d as o3d
 
-from egograph.geometry.hl2ss import (ahat_range_to_raw, invert_rigid, pv_intrinsics_matrix, rigid_from_rt,
-                                     rm_intrinsics_matrix)
+from egograph.geometry.hl2ss import (
+    ahat_range_to_raw,
+    invert_rigid,
+    pv_intrinsics_matrix,
+    rigid_from_rt,
+    rm_intrinsics_matrix,
+)
 from egograph.io.calibration import AHAT_SHAPE, PV_SHAPE, AhatCalibration, PvCalibration
 from egograph.synth.config import AhatConfig, PoseErrorConfig, PvConfig
 from egograph.synth.scene import Scene, box_mesh

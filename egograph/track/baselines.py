@@ -25,38 +25,15 @@ from typing import Callable, Sequence
 
 import numpy as np
 
-from egograph.config import knob
+from egograph.core.types import Prediction
+from egograph.core.units import TICKS_PER_SECOND
 from egograph.geometry.observations import Observations
-from egograph.io.detections import Prediction
-
-TICKS_PER_SECOND = 1e7  # HoloLens timestamps count 100 ns ticks
+from egograph.track.config import BaselineConfig
 
 # One frame's accepted measurements: instance -> (world position (3,) metres, score).
 FrameMeasurements = dict[int, tuple[np.ndarray, float]]
 
 
-@dataclass
-class BaselineConfig:
-    score_threshold: float = knob(
-        0.6, "minimum matcher score (cosine similarity) of a detection the baselines use; >= is accepted (paper: 0.6)"
-    )
-    kf_reset_distance_m: float = knob(
-        0.15,
-        "KF: a measurement farther than this from the predicted position resets the filter there, metres (paper: 0.15)",
-    )
-    kf_process_noise: float = knob(
-        0.1,
-        "KF: spectral density q of the white-noise acceleration driving the constant-velocity model, m^2/s^3 "
-        "(acceleration noise; velocity variance grows by q per second, position by q*dt^3/3)",
-    )
-    kf_measurement_noise_m: float = knob(
-        0.05, "KF: standard deviation of each coordinate of a lifted 3D position, metres"
-    )
-    kf_initial_velocity_std: float = knob(
-        0.25,
-        "KF: standard deviation of each velocity component when a filter starts or resets (velocity 0), m/s "
-        "(small: a newly seen or just-moved object is usually at rest)",
-    )
 
 
 # --------------------------------------------------------------------------- shared input handling

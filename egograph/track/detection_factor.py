@@ -17,14 +17,12 @@ When poses are variables (joint mode) the same noise applies to a pose-landmark 
 
 from __future__ import annotations
 
-from dataclasses import dataclass
-
 import gtsam
 import numpy as np
 
-from egograph.config import knob
+from egograph.track.config import KERNELS, DetectionNoiseConfig
 
-KERNELS = {
+ESTIMATORS = {
     "cauchy": gtsam.noiseModel.mEstimator.Cauchy,
     "huber": gtsam.noiseModel.mEstimator.Huber,
     "geman_mcclure": gtsam.noiseModel.mEstimator.GemanMcClure,
@@ -32,14 +30,6 @@ KERNELS = {
 }
 
 
-@dataclass
-class DetectionNoiseConfig:
-    range_sigma_m: float = knob(0.04, "detection noise along the viewing ray at zero range, metres (surface vs centre, depth cluster)")
-    range_sigma_per_m: float = knob(0.02, "growth of the along-ray sigma per metre of range (AHAT noise, alias errors)")
-    lateral_sigma_m: float = knob(0.015, "detection noise across the ray at zero range, metres (box jitter on the object)")
-    lateral_sigma_per_m: float = knob(0.012, "growth of the across-ray sigma per metre of range (pose rotation, registration), m/m")
-    kernel: str = knob("cauchy", "robust kernel on detection factors: cauchy | huber | geman_mcclure | tukey | none")
-    kernel_width: float = knob(2.0, "kernel width in whitened units (sigmas)")
 
 
 def detection_covariances(world: np.ndarray, camera: np.ndarray, cfg: DetectionNoiseConfig) -> np.ndarray:
@@ -58,9 +48,9 @@ def robust(base: gtsam.noiseModel.Base, kernel: str, width: float) -> gtsam.nois
     """Wrap a noise model in the named m-estimator (``none`` keeps it Gaussian)."""
     if kernel == "none":
         return base
-    if kernel not in KERNELS:
-        raise ValueError(f"unknown robust kernel {kernel!r}; choose one of {', '.join([*KERNELS, 'none'])}")
-    return gtsam.noiseModel.Robust.Create(KERNELS[kernel].Create(width), base)
+    if kernel not in ESTIMATORS:
+        raise ValueError(f"unknown robust kernel {kernel!r}; choose one of {', '.join(KERNELS)}")
+    return gtsam.noiseModel.Robust.Create(ESTIMATORS[kernel].Create(width), base)
 
 
 def add_detection_factors(graph: gtsam.NonlinearFactorGraph, keys: np.ndarray, world: np.ndarray,

@@ -41,18 +41,20 @@ from typing import Callable, Sequence
 import gtsam
 import numpy as np
 
-from egograph.config import knob, section
+from egograph.core.types import PositionInterval, TrackResult
+from egograph.core.units import TICKS_PER_SECOND
 from egograph.geometry.observations import Observations
-from egograph.track.detection_factor import (
-    DetectionNoiseConfig, add_detection_factors, detection_covariances, mahalanobis2,
-)
-from egograph.track.intervals import PositionInterval, per_frame_predictions
-from egograph.track.negative import NegativeConfig
+from egograph.track.config import GraphConfig
+from egograph.track.detection_factor import add_detection_factors, detection_covariances, mahalanobis2
+from egograph.track.intervals import per_frame_predictions
 from egograph.track.switchable import (
-    dcs_between, dcs_phi, dcs_switch_value, switch_clipped, switch_prior, switchable_between,
+    dcs_between,
+    dcs_phi,
+    dcs_switch_value,
+    switch_clipped,
+    switch_prior,
+    switchable_between,
 )
-
-TICKS_PER_SECOND = 1e7
 
 NegativeFn = Callable[[int, np.ndarray, int, int], "int | None"]
 """``(instance, xyz, frame_from, frame_to) -> first frame index in [from, to) whose depth
@@ -62,54 +64,6 @@ SupportFn = Callable[[np.ndarray], bool]
 """``xyz -> whether the scene can hold an object resting there`` (a surface close below)."""
 
 
-@dataclass
-class GraphConfig:
-    score_threshold: float = knob(0.6, "minimum matcher score of a detection the graph uses (the paper's 0.6)")
-    chunk_s: float = knob(0.5, "length of the time grid that over-segments an instance's timeline into landmarks, s")
-    still_sigma_m: float = knob(0.05, "sigma of the zero-motion factor between consecutive landmarks, metres")
-    switch_sigma: float = knob(0.5, "sigma of the prior pulling each switch to 1; a break costs 0.5/sigma^2 and "
-                                    "fires where landmarks differ by more than still_sigma_m/switch_sigma")
-    switches: str = knob("switchable", "motion-break factor: 'switchable' (switch variables, CustomFactor) or "
-                                       "'dcs' (dynamic covariance scaling, closed form, all C++)")
-    dcs_prepass: bool = knob(True, "switchable only: a DCS solve first; boundaries it finds clearly still get a plain "
-                                   "zero-motion factor, the rest explicit switches (far fewer Python CustomFactors)")
-    prepass_keep: float = knob(0.95, "a boundary whose DCS-implied switch is at least this is clearly still")
-    prepass_window: int = knob(10, "each candidate break is solved with this many chunks of the chain either side")
-    prepass_max_window: int = knob(60, "merged windows longer than this many chunks are solved in overlapping pieces "
-                                       "of this length (prepass_window chunks of context at each cut), so the cost "
-                                       "grows linearly with the recording, not with the longest run of candidates")
-    break_below: float = knob(0.5, "a switch below this value (0-1) is a motion break")
-    min_observations: int = knob(3, "fewest inlier detections a stationary interval needs")
-    min_inlier_share: float = knob(0.6, "share of a segment's detections its centre must explain to be stationary")
-    inlier_chi2: float = knob(11.34, "squared Mahalanobis gate of an inlier (chi2, 3 dof, 99 %)")
-    merge_radius_m: float = knob(0.12, "stationary segments whose centres are closer than this merge into one "
-                                       "interval when the segments between them are weaker, metres")
-    carry_range_m: float = knob(0.9, "a detection this close to the camera may be an object in hand, metres")
-    min_carry_observations: int = knob(2, "a non-stationary segment with at least this many detections within "
-                                          "carry_range_m is a carry (it ends the interval before it); with fewer "
-                                          "it is taken for scattered false matches and ignored")
-    pickup_radius_m: float = knob(3.0, "a carry must start within this of the stand before it or end within this "
-                                        "of the stand after it (pick-up, put-down; the first detections of a "
-                                        "carry often come a few steps later, after the motion blur), metres")
-    carry_spread_m: float = knob(0.03, "a near segment whose detections spread more than this (median, metres) "
-                                       "and more than their offsets to the head do is an object in hand")
-    exclusion_radius_m: float = knob(0.15, "offline: a stand of one instance within this distance of another "
-                                           "instance's better-supported interval at the same time is a look-alike "
-                                           "confusion and is dropped, metres (0 disables)")
-    backfill_max_s: float = knob(3.0, "after a carried stretch, an interval starts at most this long before its "
-                                      "first detection, s")
-    covariance_floor_m: float = knob(0.03, "isotropic sigma added to every interval covariance for errors shared "
-                                           "by its detections (pose drift, surface-to-centre bias), metres")
-    confidence_scale: float = knob(5.0, "inlier count at which confidence reaches 63 % of the inlier share")
-    alias_rounds: int = knob(1, "re-solves after re-choosing each detection's AHAT alias candidate")
-    max_iterations: int = knob(50, "Levenberg-Marquardt iteration limit")
-    max_support_gap_m: float = knob(0.35, "a stand seen only from within carry_range_m needs the scene mesh at most "
-                                          "this far below its centre (an object held still in hand is in mid-air), "
-                                          "metres; 0 disables; needs the recording's mesh")
-    negative_evidence: bool = knob(True, "end intervals where depth shows the place empty, and keep apart stands "
-                                         "at one place with such evidence between them (reads depth frames)")
-    noise: DetectionNoiseConfig = section(DetectionNoiseConfig, "detection factor noise and robust kernel")
-    negative: NegativeConfig = section(NegativeConfig, "negative evidence from depth")
 
 
 @dataclass
@@ -142,12 +96,6 @@ class InstanceSolution:
     pieces: list[PositionInterval] | None = None  # causal: every report with its own position
 
 
-@dataclass
-class GraphResult:
-    intervals: list[PositionInterval]
-    per_frame: dict
-    solutions: list[InstanceSolution]
-    metadata: dict
 
 
 # --------------------------------------------------------------------------- graph pieces
@@ -733,7 +681,7 @@ def select_instance_rows(obs: Observations, instance: int, threshold: float) -> 
 def graph_tracker(obs: Observations, timestamps: Sequence[int], cfg: GraphConfig, *, causal: bool = False,
                   negative: NegativeFn | None = None, support: SupportFn | None = None,
                   instances: Sequence[int] | None = None,
-                  progress: bool = False) -> GraphResult:
+                  progress: bool = False) -> TrackResult:
     """Run the graph tracker over a recording's observations.
 
     ``timestamps``: the PV frames (ticks); observations must sit on them (``obs.frame`` is
@@ -772,4 +720,4 @@ def graph_tracker(obs: Observations, timestamps: Sequence[int], cfg: GraphConfig
         "n_chunks": int(sum(s.n_chunks for s in solutions)),
         "n_stands_excluded": n_excluded,
     }
-    return GraphResult(intervals, per_frame, solutions, metadata)
+    return TrackResult(per_frame=per_frame, intervals=intervals, metadata=metadata, solutions=solutions)

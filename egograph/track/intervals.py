@@ -10,36 +10,15 @@ the frame); :func:`write_intervals_json` / :func:`read_intervals_json` round-tri
 from __future__ import annotations
 
 import json
-from dataclasses import asdict, dataclass, field
+from dataclasses import asdict
 from pathlib import Path
 from typing import Sequence
 
 import numpy as np
 
+from egograph.core.errors import InputError
+from egograph.core.types import PositionInterval, Prediction
 from egograph.io.atomic import atomic_write_text
-from egograph.io.detections import Prediction
-from egograph.io.errors import InputError
-
-
-@dataclass
-class PositionInterval:
-    instance: int
-    t_start: int                 # first PV frame covered, 100 ns ticks
-    t_end: int                   # last PV frame covered (inclusive), ticks
-    xyz: tuple[float, float, float]  # world frame, metres
-    covariance: list[list[float]]    # 3x3, m^2, world frame
-    n_observations: int          # detections that support the position (inliers)
-    confidence: float            # 0-1: belief that the object really stood here
-    first_seen: int = 0          # timestamp of the first supporting detection (ticks)
-    last_seen: int = 0           # timestamp of the last supporting detection (ticks)
-    backfilled: bool = False     # t_start was extended to the start of the recording (offline)
-    ended_by: str = ""           # what closed it: 'detection' elsewhere, 'negative' evidence, 'end' of recording
-    extra: dict = field(default_factory=dict)
-
-    @property
-    def sigma_m(self) -> float:
-        """Root of the largest covariance eigenvalue, metres."""
-        return float(np.sqrt(np.linalg.eigvalsh(np.asarray(self.covariance)).max()))
 
 
 def per_frame_predictions(intervals: Sequence[PositionInterval], timestamps: Sequence[int]) -> dict[int, list[Prediction]]:

@@ -34,21 +34,11 @@ from dataclasses import dataclass, field
 import gtsam
 import numpy as np
 
-from egograph.config import knob
 from egograph.geometry.hl2ss import invert_rigid
 from egograph.geometry.observations import Observations
 from egograph.poses.refine import RefineResult, confirm_jumps, corrected_depth_poses, pose_change, refinement_factors
-from egograph.track.detection_factor import DetectionNoiseConfig, robust
-
-
-@dataclass
-class JointConfig:
-    rounds: int = knob(1, "joint mode: (track -> joint pose/landmark solve -> re-track) rounds")
-    min_inliers: int = knob(3, "joint mode: a stand joins the pose graph with at least this many inlier detections")
-    noise_scale: float = knob(1.0, "joint mode: detection sigmas are multiplied by this in the pose graph; the "
-                                   "detections of one stand share part of their error (the visible surface is "
-                                   "not the centre), so they are not independent measurements of the poses")
-    max_iterations: int = knob(50, "joint mode: Levenberg-Marquardt iteration limit of the joint solve")
+from egograph.track.config import DetectionNoiseConfig, JointConfig
+from egograph.track.detection_factor import robust
 
 
 @dataclass
@@ -90,7 +80,7 @@ def object_key(j: int) -> int:
 
 
 def stands_from_result(result, min_inliers: int) -> list[Stand]:
-    """The stands of a :class:`~egograph.track.graph.GraphResult` (offline) with their inliers."""
+    """The stands of a :class:`~egograph.core.types.TrackResult` (offline) with their inliers."""
     out = []
     for sol in result.solutions:
         if sol.world is None:

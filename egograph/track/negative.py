@@ -30,33 +30,20 @@ view during a gap are read.
 from __future__ import annotations
 
 from collections import OrderedDict
-from dataclasses import dataclass
 
 import numpy as np
 
-from egograph.config import knob
 from egograph.geometry.hl2ss import (
-    ahat_project, ahat_to_world_matrix, invert_rigid, pose_validity, pv_project, transform_points,
+    ahat_project,
+    ahat_to_world_matrix,
+    invert_rigid,
+    pose_validity,
+    pv_project,
+    transform_points,
 )
 from egograph.geometry.lift import mesh_scene
 from egograph.geometry.observations import Observations
-
-
-@dataclass
-class NegativeConfig:
-    margin_m: float = knob(0.08, "a pixel is empty when its reading, and the mesh, lie at least this far behind "
-                                 "the landmark centre, metres")
-    agree_m: float = knob(0.03, "a reading up to this far behind the landmark centre may still be the object, metres")
-    object_radius_m: float = knob(0.15, "a reading up to this far in front of the landmark centre is the object "
-                                        "(occupied), metres")
-    max_range_m: float = knob(2.5, "only landmarks within this range of the depth camera are tested, metres")
-    window_px: int = knob(2, "half side of the AHAT pixel window around the landmark's projection")
-    image_margin_px: float = knob(40.0, "the landmark must project this far inside the PV image, pixels")
-    min_frames: int = knob(3, "consecutive empty frames needed to say the object is gone")
-    stride: int = knob(2, "test every Nth frame of a gap")
-    empty_share: float = knob(0.6, "share of valid window pixels that must be empty for an empty frame")
-    detection_gate_m: float = knob(0.3, "a detection of the instance this close to the landmark means it is there")
-    cache_frames: int = knob(64, "decoded depth frames kept in memory")
+from egograph.track.config import NegativeConfig
 
 
 class NegativeEvidence:

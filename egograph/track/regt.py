@@ -21,20 +21,13 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from egograph.config import knob
+from egograph.core.types import Detection
 from egograph.geometry.observations import Observations
 from egograph.io.annotations import Annotations, CenterAnnotation
-from egograph.io.detections import Detection
+from egograph.track.config import GraphConfig, RegtConfig
 from egograph.track.detection_factor import detection_covariances, mahalanobis2
-from egograph.track.graph import GraphConfig, fixed_interval_estimate
+from egograph.track.graph import fixed_interval_estimate
 from egograph.track.joint import Stand
-
-
-@dataclass
-class RegtConfig:
-    audit_m: float = knob(0.1, "audit: flag a given centre farther than this from the re-estimate, metres ...")
-    audit_sigma: float = knob(4.0, "... and farther than this many sigmas (Mahalanobis, re-estimate covariance; "
-                                   "4 sigma in 3D is a chi2 tail of 0.1 %: only gross disagreements)")
 
 
 @dataclass

@@ -18,9 +18,9 @@ from typing import Mapping, Sequence
 
 import numpy as np
 
+from egograph.core.types import Prediction
 from egograph.geometry.hl2ss import camera_center
 from egograph.geometry.observations import Observations
-from egograph.io.detections import Prediction
 
 
 def predictions_to_observations(per_frame: Mapping[int, Sequence[Prediction]], timestamps: Sequence[int],
@@ -48,7 +48,7 @@ def predictions_to_observations(per_frame: Mapping[int, Sequence[Prediction]], t
 def smooth_predictions(rec, per_frame: Mapping[int, Sequence[Prediction]], cfg, causal: bool = False,
                        progress: bool = False):
     """Another tracker's per-frame predictions on recording ``rec`` -> the graph's
-    :class:`~egograph.track.graph.GraphResult`. Every prediction is used (``score_threshold``
+    :class:`~egograph.core.types.TrackResult`. Every prediction is used (``score_threshold``
     0: the other tracker already thresholded its detections) and there are no alias candidates."""
     from egograph.track.graph import graph_tracker
 

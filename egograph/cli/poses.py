@@ -14,7 +14,7 @@ from __future__ import annotations
 import json
 from pathlib import Path
 
-from egograph.config import ConfigError
+from egograph.core.errors import ConfigError
 
 
 def add_parsers(sub, add_config_args, add_rec_args, default_config: Path) -> None:
@@ -40,8 +40,8 @@ def add_parsers(sub, add_config_args, add_rec_args, default_config: Path) -> Non
 
 
 def _config(args):
-    from egograph.config import load_config
-    from egograph.settings import EgographConfig
+    from egograph.core.config import load_config
+    from egograph.steps.settings import EgographConfig
 
     return load_config(EgographConfig, args.config, args.overrides)
 
@@ -56,7 +56,7 @@ def _open(args, cfg):
 
 
 def _show(cfg) -> None:
-    from egograph.cli import _show_config
+    from egograph.cli.common import _show_config
 
     _show_config(cfg)
 
@@ -64,7 +64,7 @@ def _show(cfg) -> None:
 def cmd_refine(args) -> int:
     import warnings
 
-    from egograph.io.errors import InputError
+    from egograph.core.errors import InputError
     from egograph.poses.refine import refine_recording, write_refined
 
     cfg = _config(args)
@@ -98,7 +98,7 @@ def cmd_refine(args) -> int:
 def _summary(result, extra: dict, out: Path) -> None:
     from rich.table import Table
 
-    from egograph.cli import _console
+    from egograph.cli.common import _console
 
     con = _console()
     t = Table(title=f"refined poses -> {out}")
@@ -125,7 +125,7 @@ def _summary(result, extra: dict, out: Path) -> None:
 
 def load_trajectory(path: Path, rec=None):
     """(timestamps, PV poses row-vector) from a folder with pv_pose.json or a TUM file."""
-    from egograph.io.errors import InputError
+    from egograph.core.errors import InputError
     from egograph.io.poses import read_pose_json
     from egograph.poses.tum import read_tum
 
@@ -149,8 +149,8 @@ def load_trajectory(path: Path, rec=None):
 def cmd_eval_poses(args) -> int:
     import numpy as np
 
+    from egograph.core.errors import InputError
     from egograph.io.atomic import atomic_write_text
-    from egograph.io.errors import InputError
     from egograph.poses.evaluate import ate_errors, evaluate_trajectory, match_timestamps, plot_errors
 
     cfg = _config(args)
@@ -190,7 +190,7 @@ def cmd_eval_poses(args) -> int:
             e2[ok2] = ate_errors(rr[ok2], rref[ok2])
             curves = {"reported": e2, **curves}
         plot_errors(args.plot, (ts - ts[0]) / 1e7, curves, f"position error vs {ref_name}")
-    from egograph.cli import _console
+    from egograph.cli.common import _console
 
     _console().print(f"{est_name} vs {ref_name} ({ev.n} frames): ATE {ev.ate_rmse_m * 100:.2f} cm "
                      f"(aligned {ev.ate_rmse_aligned_m * 100:.2f} cm, max {ev.ate_max_m * 100:.2f} cm), rotation "

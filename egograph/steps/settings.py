@@ -10,20 +10,11 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
-from egograph.config import knob, section
-from egograph.geometry.lift import LiftConfig
+from egograph.core.config import section
+from egograph.geometry.config import LiftConfig
+from egograph.io.config import IoConfig
 from egograph.poses.config import RefineConfig
-from egograph.track.baselines import BaselineConfig
-from egograph.track.graph import GraphConfig
-from egograph.track.joint import JointConfig
-from egograph.track.regt import RegtConfig
-
-
-@dataclass
-class IoConfig:
-    invalid_poses: str = knob("error", "a NaN/singular pose: 'error' stops with the file and timestamp, 'skip' drops that frame")
-    box_format: str = knob("xyxy", "box columns of detection/annotation files: 'xyxy' (x_min y_min x_max y_max) or 'xywh'")
-    depth_factor: float = knob(0.0, "raw AHAT unit in mm (4 for the hl2ss version IT3DEgo used, 1 for current hl2ss); 0 = detect from the data")
+from egograph.track.config import BaselineConfig, GraphConfig, JointConfig, RegtConfig
 
 
 @dataclass

@@ -22,34 +22,13 @@ import time
 import warnings
 from pathlib import Path
 
-from egograph.config import ConfigError, describe, load_config
-
-REPO = Path(__file__).resolve().parents[1]
-DEFAULT_CONFIG = REPO / "configs" / "default.yaml"
-
-
-def _console():
-    from rich.console import Console
-
-    return Console()
-
-
-def _add_config_args(p: argparse.ArgumentParser, default: Path | None) -> None:
-    p.add_argument("--config", type=Path, default=default, help=f"YAML config (default: {default})")
-    p.add_argument("--set", dest="overrides", action="append", default=[], metavar="KEY=VALUE",
-                   help="override a config knob (dotted key), e.g. --set lift.mode=reference; repeatable")
-    p.add_argument("--show-config", action="store_true", help="print every knob with its value and documentation, then exit")
-
-
-def _add_rec_args(p: argparse.ArgumentParser) -> None:
-    p.add_argument("rec", type=Path, help="recording: a sequence folder, or a root holding one (as `egograph synth` writes)")
-    p.add_argument("--sequence", help="sequence name when REC holds several")
-    p.add_argument("--calibration", type=Path, help="calibrations/ folder when not found beside/above the recording")
-    p.add_argument("--annotations", type=Path, help="annotation folder when not found beside the recording")
+from egograph.cli.common import DEFAULT_CONFIG, REPO, _add_config_args, _add_rec_args, _console, _show_config
+from egograph.core.config import load_config
+from egograph.core.errors import ConfigError
 
 
 def _pipeline_config(args):
-    from egograph.settings import EgographConfig
+    from egograph.steps.settings import EgographConfig
 
     return load_config(EgographConfig, args.config, args.overrides)
 
@@ -65,19 +44,10 @@ def _lifting_config(args):
     return cfg
 
 
-def _show_config(cfg) -> None:
-    from rich.table import Table
-
-    t = Table(title="configuration")
-    for col in ("knob", "value", "meaning"):
-        t.add_column(col)
-    for key, value, doc in describe(cfg):
-        t.add_row(key, repr(value), doc)
-    _console().print(t)
 
 
 def _open(args, cfg):
-    from egograph.pipeline import open_recording
+    from egograph.steps.pipeline import open_recording
 
     rec = open_recording(args.rec, cfg, calibration=args.calibration, annotations=args.annotations,
                          sequence=args.sequence)
@@ -138,7 +108,7 @@ def cmd_synth(args) -> int:
 
 
 def cmd_info(args) -> int:
-    from egograph.io.summary import print_summary, summarize
+    from egograph.steps.info import print_summary, summarize
 
     cfg = _pipeline_config(args)
     rec = _open(args, cfg)
@@ -152,7 +122,7 @@ def cmd_info(args) -> int:
 
 
 def cmd_lift(args) -> int:
-    from egograph.pipeline import lift
+    from egograph.steps.pipeline import lift
 
     cfg = _lifting_config(args)
     if cfg is None:
@@ -174,7 +144,15 @@ def cmd_lift(args) -> int:
 
 def cmd_track(args) -> int:
     from egograph.geometry.observations import Observations
-    from egograph.pipeline import GRAPH_TRACKERS, evaluate, lift, track, track_graph, tracker_names, write_results
+    from egograph.steps.pipeline import (
+        GRAPH_TRACKERS,
+        evaluate,
+        lift,
+        track,
+        track_graph,
+        tracker_names,
+        write_results,
+    )
 
     cfg = _lifting_config(args)
     if cfg is None:
@@ -194,7 +172,7 @@ def cmd_track(args) -> int:
     if args.joint_poses and args.tracker != "graph":
         raise ConfigError(f"--joint-poses needs --tracker graph (offline), not {args.tracker}")
     if args.joint_poses:
-        from egograph.pipeline import track_graph_joint
+        from egograph.steps.pipeline import track_graph_joint
 
         result, jp = track_graph_joint(rec, obs, cfg, progress=not args.quiet)
         per_frame = result.per_frame
@@ -246,11 +224,11 @@ def _print_intervals(con, intervals, rec, metadata: dict) -> None:
 
 
 def cmd_regt(args) -> int:
+    from egograph.core.errors import InputError
     from egograph.geometry.lift import lift_recording
     from egograph.io.annotations import load_annotations, write_centers
     from egograph.io.atomic import atomic_write_text
-    from egograph.io.errors import InputError
-    from egograph.pipeline import n_instances, regt_estimates
+    from egograph.steps.pipeline import n_instances, regt_estimates
     from egograph.track.regt import as_center_annotations, audit_text, box_detections
 
     cfg = _lifting_config(args)
@@ -285,7 +263,7 @@ def cmd_regt(args) -> int:
 
 def cmd_smooth(args) -> int:
     from egograph.io.detections import read_results_dir
-    from egograph.pipeline import write_results
+    from egograph.steps.pipeline import write_results
     from egograph.track.intervals import write_intervals_json
     from egograph.track.smooth import smooth_predictions
 
@@ -305,14 +283,14 @@ def cmd_smooth(args) -> int:
     con.print(f"smoothed {result.metadata['n_observations']} predictions of {args.results} -> {args.out}, "
               f"intervals -> {ipath}")
     if args.eval and rec.annotation_dir is not None:
-        from egograph.pipeline import evaluate
+        from egograph.steps.pipeline import evaluate
 
         evaluate(rec, args.out).print(con)
     return 0
 
 
 def cmd_eval(args) -> int:
-    from egograph.pipeline import evaluate
+    from egograph.steps.pipeline import evaluate
 
     cfg = _pipeline_config(args)
     rec = _open(args, cfg)
@@ -336,7 +314,7 @@ def cmd_eval(args) -> int:
 def cmd_compare(args) -> int:
     from egograph.eval.report import comparison_table, plot_pr
     from egograph.io.atomic import atomic_write_text
-    from egograph.pipeline import evaluate
+    from egograph.steps.pipeline import evaluate
 
     cfg = _pipeline_config(args)
     rec = _open(args, cfg)
@@ -364,10 +342,10 @@ def cmd_demo(args) -> int:
     import tempfile
 
     from egograph.eval.report import comparison_table
-    from egograph.pipeline import GRAPH_TRACKERS, evaluate, lift, track, track_graph, write_results
+    from egograph.steps.pipeline import GRAPH_TRACKERS, evaluate, lift, track, track_graph, write_results
     from egograph.synth.config import SynthConfig
-    from egograph.track.intervals import write_intervals_json
     from egograph.synth.generate import generate
+    from egograph.track.intervals import write_intervals_json
 
     con = _console()
     out = Path(args.out) if args.out else Path(tempfile.mkdtemp(prefix="egograph-demo-"))
@@ -380,8 +358,8 @@ def cmd_demo(args) -> int:
         con.print(f"generated {r.frames} frames in {r.seconds:.1f} s ({r.fps_generation:.1f} frames/s)")
     cmd_info(argparse.Namespace(rec=rec_dir, sequence=None, calibration=None, annotations=None, json=None,
                                 config=DEFAULT_CONFIG, overrides=[], show_config=False))
-    from egograph.pipeline import open_recording
-    from egograph.settings import EgographConfig
+    from egograph.steps.pipeline import open_recording
+    from egograph.steps.settings import EgographConfig
 
     cfg = load_config(EgographConfig, DEFAULT_CONFIG)
 
@@ -521,14 +499,14 @@ def build_parser() -> argparse.ArgumentParser:
                    help="override a synthetic-recording knob")
     s.set_defaults(func=cmd_demo)
 
-    from egograph import cli_poses
+    from egograph.cli import poses as cli_poses
 
     cli_poses.add_parsers(sub, _add_config_args, _add_rec_args, DEFAULT_CONFIG)
     return p
 
 
 def main(argv: list[str] | None = None) -> int:
-    from egograph.io.errors import InputError
+    from egograph.core.errors import InputError
 
     args = build_parser().parse_args(argv)
     warnings.simplefilter("default")

@@ -16,11 +16,9 @@ from typing import Any, TypeVar
 
 import yaml
 
+from egograph.core.errors import ConfigError
+
 T = TypeVar("T")
-
-
-class ConfigError(ValueError):
-    """A config file or override that does not fit the config schema."""
 
 
 def knob(default: Any, doc: str) -> Any:

@@ -7,12 +7,12 @@ from __future__ import annotations
 
 from pathlib import Path
 
+from egograph.core.errors import InputError
 from egograph.eval.loader import evaluate_loaded, load_sequence
 from egograph.eval.report import EvalReport
 from egograph.io.detections import read_detection_dir, write_results_dir
-from egograph.io.errors import InputError
 from egograph.io.recording import Recording
-from egograph.settings import EgographConfig
+from egograph.steps.settings import EgographConfig
 
 
 def open_recording(path: str | Path, cfg: EgographConfig, *, calibration: str | Path | None = None,
@@ -52,7 +52,7 @@ def tracker_names() -> list[str]:
 
 
 def track_graph(rec: Recording, obs, cfg: EgographConfig, causal: bool = False, progress: bool = False):
-    """The factor-graph tracker -> :class:`~egograph.track.graph.GraphResult`, with negative
+    """The factor-graph tracker -> :class:`~egograph.core.types.TrackResult`, with negative
     evidence from the recording's depth (``cfg.graph.negative_evidence``) and the support test
     against its mesh (``cfg.graph.max_support_gap_m``)."""
     from egograph.track.graph import graph_tracker
@@ -77,7 +77,7 @@ def track_graph_joint(rec: Recording, obs, cfg: EgographConfig, progress: bool =
     """Offline graph tracker in joint mode (``--joint-poses``): the PV poses become variables of
     one graph with the refinement factors (``cfg.refine``) and the landmarks of the stands the
     tracker found; the tracker then runs again on the observations and poses so corrected
-    (``cfg.joint.rounds`` times). Returns ``(GraphResult, JointPoses)``; ``obs`` must be lifted
+    (``cfg.joint.rounds`` times). Returns ``(TrackResult, JointPoses)``; ``obs`` must be lifted
     with ``rec``'s poses. ``factors``: the recording's RefinementGraph when already built (with
     ``refinement_factors(..., confirm_jumps_now=False)``)."""
     from egograph.poses.refine import world_corrections

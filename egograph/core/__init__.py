@@ -1,0 +1,1 @@
+"""The bottom layer: records, units, errors and the config machinery; imports nothing else of egograph."""

@@ -1,0 +1,2 @@
+"""Reading and writing the IT3DEgo layout: recordings, calibration, poses, annotations,
+detections, results, atomic output."""
