@@ -9,12 +9,13 @@ import numpy as np
 import pytest
 
 from egograph.core.config import load_config
+from egograph.core.resources import synth_config
 from egograph.io.poses import read_pose_json, write_pose_json
 from egograph.synth.config import SynthConfig
 from egograph.synth.generate import generate
 
 REPO = Path(__file__).resolve().parents[1]
-TINY = REPO / "configs" / "synth" / "tiny.yaml"
+TINY = synth_config("tiny")
 
 
 def make_recording(root: Path, seed: int, *overrides: str) -> Path:

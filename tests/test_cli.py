@@ -2,12 +2,14 @@
 
 import json
 
+import pytest
 from conftest import TINY
 
 from egograph.cli import main
 from egograph.io.recording import Recording
 
 
+@pytest.mark.slow
 def test_synth_and_info(tmp_path, capsys):
     out = tmp_path / "rec"
     assert main(["synth", str(out), "--config", str(TINY), "--frames", "15", "--seed", "2", "--quiet",
@@ -18,6 +20,7 @@ def test_synth_and_info(tmp_path, capsys):
     assert "reported PV pose error" in capsys.readouterr().out
 
 
+@pytest.mark.slow
 def test_track_eval_compare(tiny_rec, tmp_path, capsys):
     rec = Recording.open(tiny_rec)
     for tracker in ("memory", "kf"):
@@ -45,10 +48,11 @@ def test_bad_input_exits_2_naming_the_file(tmp_path, capsys):
     bad = tmp_path / "bad.yaml"
     bad.write_text("frames: [\n")
     assert main(["synth", str(tmp_path / "o"), "--config", str(bad), "--quiet"]) == 2
-    assert "bad.yaml: not valid YAML" in capsys.readouterr().err
+    assert "bad.yaml:2: not valid YAML" in capsys.readouterr().err
     assert not (tmp_path / "o").exists()
 
 
+@pytest.mark.slow
 def test_graph_track_regt_smooth(tiny_rec, tmp_path, capsys):
     from egograph.eval.loader import load_gt_intervals
     from egograph.track.intervals import read_intervals_json
@@ -57,7 +61,7 @@ def test_graph_track_regt_smooth(tiny_rec, tmp_path, capsys):
     assert main(["track", str(tiny_rec), "--tracker", "graph", "--detections", "mvpe", "--quiet",
                  "--out", str(tmp_path / "graph"), "--eval"]) == 0
     assert len(list((tmp_path / "graph").glob("*.txt"))) == len(rec)
-    intervals, meta = read_intervals_json(tmp_path / "graph.intervals.json")
+    intervals, meta = read_intervals_json(tmp_path / "graph" / "intervals.json")
     assert meta["tracker"] == "graph" and meta["backfilled"] is True and intervals
     out = capsys.readouterr().out
     assert "position intervals" in out and "back-filled" in out
@@ -70,7 +74,7 @@ def test_graph_track_regt_smooth(tiny_rec, tmp_path, capsys):
 
     assert main(["track", str(tiny_rec), "--tracker", "graph-causal", "--detections", "mvpe", "--quiet",
                  "--out", str(tmp_path / "causal")]) == 0
-    assert read_intervals_json(tmp_path / "causal.intervals.json")[1]["backfilled"] is False
+    assert read_intervals_json(tmp_path / "causal" / "intervals.json")[1]["backfilled"] is False
 
     assert main(["regt", str(tiny_rec), "--out", str(tmp_path / "regt"), "--quiet"]) == 0
     for name in ("3d_center_annot.txt", "regt.json", "audit.md"):
@@ -82,9 +86,25 @@ def test_graph_track_regt_smooth(tiny_rec, tmp_path, capsys):
     assert main(["smooth", str(tiny_rec), str(tmp_path / "kf"), "--out", str(tmp_path / "kf_graph"),
                  "--quiet"]) == 0
     assert len(list((tmp_path / "kf_graph").glob("*.txt"))) == len(rec)
-    assert read_intervals_json(tmp_path / "kf_graph.intervals.json")[1]["smoothed"].endswith("kf")
+    assert read_intervals_json(tmp_path / "kf_graph" / "intervals.json")[1]["smoothed"].endswith("kf")
 
 
 def test_unknown_tracker_is_refused(tiny_rec, tmp_path, capsys):
     assert main(["track", str(tiny_rec), "--tracker", "bogus", "--out", str(tmp_path / "x"), "--quiet"]) == 2
     assert "bogus" in capsys.readouterr().err and not (tmp_path / "x").exists()
+
+
+def test_every_option_has_help_and_tracker_lists_its_choices(capsys):
+    import argparse
+
+    from egograph.cli.main import build_parser
+    from egograph.track.registry import TRACKERS
+
+    parser = build_parser()
+    sub = next(a for a in parser._actions if isinstance(a, argparse._SubParsersAction))
+    missing = [(name, b.option_strings or b.dest) for name, sp in sub.choices.items() for b in sp._actions
+               if not b.help and not isinstance(b, argparse._HelpAction)]
+    assert missing == []
+    assert main(["track", "--help"]) == 0
+    out = capsys.readouterr().out
+    assert all(name in out for name in TRACKERS)

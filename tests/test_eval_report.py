@@ -5,6 +5,7 @@ from __future__ import annotations
 import csv
 import io
 import json
+import re
 
 import numpy as np
 import pytest
@@ -20,6 +21,14 @@ from egograph.eval import (
     score_intervals,
 )
 from egograph.eval.loader import evaluate_loaded, load_camera_centers, load_sequence
+from egograph.eval.report import (
+    comparison_rich_tables,
+    format_metric_cells,
+    print_comparison,
+    render_comparison,
+    render_report,
+    threshold_label,
+)
 
 K = len(THRESHOLDS)
 PNG_MAGIC = b"\x89PNG\r\n\x1a\n"
@@ -105,14 +114,85 @@ def test_csv_markdown_and_terminal(tmp_path):
     assert "seq_b/0" in text and "50.0" in text
 
 
-def test_zero_denominators_reported_as_zero_with_n():
+def empty_report() -> EvalReport:
+    """One GT interval over two frames and no prediction: precision, L2 and angle are undefined."""
     rep = EvalReport()
     rep.add("empty", evaluate_sequence([0, 1], [GtInterval(0, 0, 1, (0, 0, 0))], {}))
-    d = rep.to_json_dict()
+    return rep
+
+
+def test_undefined_values_print_as_na():
+    rep = empty_report()
+    d = rep.to_json_dict()  # JSON keeps the protocol's 0.0 with the counts that say it is undefined
     assert d["precision"] == [0.0] * K and d["n_pred"] == 0
     assert d["l2_m"] == 0.0 and d["l2_n"] == 0
     assert d["intervals"] is None
-    assert "0.0 (n=0)" in rep.to_markdown()
+    md = rep.to_markdown()
+    assert "| total | all | n/a | n/a | n/a | n/a | n/a | 0.0 | 0.0 | 0.0 | 0.0 | 0.0 | n/a | n/a | 0.0 | 2 | 0 |" in md
+    assert "(n=0)" not in md
+    row = list(csv.DictReader(io.StringIO(rep.to_csv())))[0]
+    assert row["P@0.25"] == "" and row["l2_m"] == "" and row["angle_rad"] == "" and row["R@0.25"] == "0.0"
+    console = Console(width=80, record=True)
+    rep.print(console=console)
+    text = console.export_text()
+    assert text.count("n/a") >= 7 and "0.00 " not in text.replace("0.00 s", "")
+    # a NaN (e.g. from hand-built counts) is undefined too
+    rep2 = make_report()
+    rep2.sequences["seq_b"].result.total.l2_sum = float("nan")
+    assert format_metric_cells(rep2.total)["L2 (m)"] == "n/a"
+
+
+def header_names(text: str) -> set[str]:
+    """Headers of right-aligned columns in a rendered table: a token of one line joined with the token
+    ending at the same column on the line above (two-line headers ``P@`` / ``0.25``), spaces removed."""
+    lines = text.splitlines()
+    out = set()
+    for above, line in zip([""] + lines, lines):
+        ends = {m.end(): m.group() for m in re.finditer(r"\S+", above)}
+        for m in re.finditer(r"\S+", line):
+            out.add(ends.get(m.end(), "") + m.group())
+    return out
+
+
+def test_terminal_table_fits_80_columns_with_every_column():
+    rep = make_report()
+    console = Console(width=80, record=True)
+    rep.print(console=console, per_instance=True)
+    text = console.export_text()
+    assert max(len(line) for line in text.splitlines()) <= 80
+    assert "…" not in text  # nothing truncated
+    labels = [threshold_label(t) for t in THRESHOLDS]
+    wanted = [f"P@{x}" for x in labels] + [f"R@{x}" for x in labels] + ["L2(m)", "angle(rad)", "PCL@0.3",
+                                                                          "n_gt", "n_pred"]
+    assert set(wanted) <= header_names(text), set(wanted) - header_names(text)
+    for name in ("all", "seq_a", "seq_b", "seq_a/0(cup_1)", "seq_a/1(cup_2)", "seq_b/0"):
+        assert name in text
+    # every value of the total row is shown: P 50.0 % at 0.25 m ... n_gt 5, n_pred 4
+    cells = format_metric_cells(rep.total)
+    rows = [line.split() for line in text.splitlines() if line.startswith("all ")]
+    shown = [x for row in rows for x in row[1:]]
+    assert shown == [cells[h] for h in wanted[:10]] + [cells["L2 (m)"], cells["angle (rad)"], cells["PCL@0.3"], "5", "4"]
+    # and the rest of the undefined instance row says n/a, not 0.0
+    assert any(line.startswith("seq_a/1(cup_2)") and "n/a" in line for line in text.splitlines())
+    # wide terminals get one table
+    assert len(rep.rich_tables(per_instance=True, width=200)) == 1
+
+
+def test_comparison_terminal_tables_fit_80_columns():
+    reports = {"kf (reference lift)": make_report(), "graph-causal (robust lift)": make_report(0.4),
+               "nothing": empty_report()}
+    tables = comparison_rich_tables(reports, baseline="kf (reference lift)", width=80)
+    headers = ["".join(str(c.header).split()) for t in tables for c in t.columns if str(c.header) != "tracker"]
+    md, _ = comparison_table(reports, baseline="kf (reference lift)")
+    md_header = [c.strip().replace(" / kf (reference lift)", " / base") for c in md.splitlines()[0].strip("|").split("|")]
+    assert headers == ["".join(h.split()) for h in md_header[1:]]  # every column, in order
+    console = Console(width=80, record=True)
+    print_comparison(reports, "kf (reference lift)", console)
+    text = console.export_text()
+    assert max(len(line) for line in text.splitlines()) <= 80 and "…" not in text
+    assert "base = kf (reference lift)" in " ".join(text.split())
+    nothing = [line for line in text.splitlines() if line.startswith("nothing")]
+    assert len(nothing) == 2 and all("n/a" in line for line in nothing)
 
 
 def test_plot_pr_writes_png(tmp_path):
@@ -144,6 +224,37 @@ def test_comparison_table_layout_and_ratios():
     assert md2.splitlines()[0].count("|") == 14
     with pytest.raises(ValueError):
         comparison_table(reports, baseline="nope")
+
+
+def test_comparison_undefined_cells_and_ratios():
+    reports = {"memory": make_report(), "nothing": empty_report()}
+    md, text = comparison_table(reports, baseline="memory", ratio_columns=("P@0.25", "R@0.25", "L2 (m)"))
+    row = [c.strip() for c in md.splitlines()[3].strip("|").split("|")]
+    # no predictions: precision, L2, angle and their ratios n/a; recall 0.0 and its ratio 0.00
+    assert row == ["nothing"] + ["n/a"] * 5 + ["0.0"] * 5 + ["n/a", "n/a", "n/a", "0.00", "n/a"]
+    rows = list(csv.reader(io.StringIO(text)))
+    assert rows[2] == ["nothing"] + [""] * 5 + ["0.0"] * 5 + ["", "", "", "0.0", ""]
+    # against an undefined baseline every ratio is n/a
+    md, _ = comparison_table(reports, baseline="nothing", ratio_columns=("P@0.25",))
+    assert md.splitlines()[2].endswith("| n/a |")
+
+
+def test_render_report_and_comparison_formats():
+    rep = make_report()
+    assert render_report(rep, "md") == rep.to_markdown()
+    assert render_report(rep, "csv") == rep.to_csv()
+    assert json.loads(render_report(rep, "json")) == json.loads(json.dumps(rep.to_json_dict()))
+    reports = {"memory": rep, "nothing": empty_report()}
+    md, text = comparison_table(reports, baseline="memory")
+    assert render_comparison(reports, "memory", "md") == md
+    assert render_comparison(reports, "memory", "csv") == text
+    d = json.loads(render_comparison(reports, "memory", "json"))
+    header = next(csv.reader(io.StringIO(text)))
+    assert d["baseline"] == "memory" and d["columns"] == header[1:]
+    assert d["trackers"]["memory"]["P@0.25"] == pytest.approx(50.0)
+    assert d["trackers"]["nothing"]["P@0.25"] is None and d["trackers"]["nothing"]["R@0.25"] == 0.0
+    with pytest.raises(ValueError, match="expected one of md, csv, json"):
+        render_report(rep, "xlsx")
 
 
 def test_load_sequence_end_to_end(tmp_path):

@@ -106,3 +106,35 @@ def test_alias_wrap_and_candidates():
     assert np.isnan(c[:, -1]).any()
     raw = g.ahat_range_to_raw(np.array([0.745]), 1000.0, 4.0)
     assert raw.dtype == np.uint16 and raw[0] == 186  # 745 mm in 4 mm units
+
+
+def test_ahat_unit_rays_match_the_camera_points(rec):
+    """Unit rays (float64) point at the camera points of any reading; [x, y, 1] keeps the input dtype."""
+    uv2xy = rec.ahat.uv2xy
+    dirs = g.ahat_unit_rays(uv2xy)
+    assert dirs.shape == uv2xy.shape[:2] + (3,) and dirs.dtype == np.float64
+    np.testing.assert_allclose(np.linalg.norm(dirs, axis=-1), 1.0, atol=1e-12)
+    xy1 = g.ahat_xy1(uv2xy)
+    assert xy1.dtype == uv2xy.dtype and (xy1[..., 2] == 1).all()
+    raw = np.full(uv2xy.shape[:2], 250.0)
+    cam = g.ahat_raw_to_camera(raw, uv2xy, rec.ahat.scale, rec.depth_factor)
+    # (ahat_raw_to_camera works in the calibration's float32)
+    np.testing.assert_allclose(cam, dirs * 250.0 * rec.depth_factor / rec.ahat.scale, atol=1e-6)
+    # subsets of pixels get the same bits as the full grid
+    assert g.ahat_unit_rays(uv2xy[::7, 3::5]).tobytes() == dirs[::7, 3::5].tobytes()
+
+
+def test_recording_builds_its_mesh_scene_once_and_lazily(tiny_rec):
+    """Opening a recording does not import Open3D; its mesh scene is built once and shared by copies."""
+    import dataclasses
+    import subprocess
+    import sys
+
+    code = ("import sys; from egograph.io.recording import Recording; "
+            f"Recording.open({str(tiny_rec)!r}); print('open3d' in sys.modules)")
+    assert subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True).stdout.strip() \
+        == "False"
+    rec = Recording.open(tiny_rec)
+    scene = rec.mesh_scene()
+    assert scene is not None and rec.mesh_scene() is scene
+    assert dataclasses.replace(rec, pv_poses=rec.pv_poses.copy()).mesh_scene() is scene

@@ -11,19 +11,13 @@ import pytest
 from egograph.core.types import Box, Detection
 from egograph.geometry import hl2ss as g
 from egograph.geometry.config import LiftConfig
-from egograph.geometry.lift import (
-    alias_shifts,
-    box_reach,
-    lift_recording,
-    nearest_dominant_cluster,
-    prefetched,
-    shrink_box,
-    synth_lift_errors,
-    write_lifted_dir,
-)
+from egograph.geometry.lift import lift_recording, write_lifted_dir
+from egograph.geometry.prefetch import prefetched
+from egograph.geometry.robust_lift import alias_shifts, box_reach, nearest_dominant_cluster, shrink_box
 from egograph.io.detections import read_detection_dir, read_results_dir
 from egograph.io.poses import read_pose_json
 from egograph.io.recording import Recording
+from egograph.synth.truth import synth_lift_errors
 
 
 def fresh(path) -> Recording:
@@ -63,7 +57,7 @@ def fake_recording(raw: np.ndarray, uv2xy: np.ndarray, depth_pose: np.ndarray):
     k = g.rm_intrinsics_matrix(F, F, CX, CY)
     return SimpleNamespace(
         timestamps=np.array([1000], np.int64), index_of=lambda ts: {1000: 0}[int(ts)],
-        depth_raw=lambda i: raw, mesh=lambda: None, annotation_dir=None, depth_factor=4.0,
+        depth_raw=lambda i: raw, mesh=lambda: None, mesh_scene=lambda: None, annotation_dir=None, depth_factor=4.0,
         depth_poses=depth_pose[None], depth_valid=np.array([True]),
         pv_poses=np.eye(4)[None], pv_valid=np.array([True]),
         ahat=SimpleNamespace(uv2xy=uv2xy, extrinsics=g.invert_rigid(ahat_cam_to_rig), scale=1000.0,
@@ -189,6 +183,7 @@ def test_robust_accuracy_reported_poses(robust_obs):
     assert np.percentile(e, 90) < 0.15
 
 
+@pytest.mark.slow
 def test_robust_beats_reference_true_poses(tiny_rec, svoe):
     """With the true poses (lifting error only): robust median < 3 cm and below reference mode's.
 

@@ -41,6 +41,7 @@ def jump_rec(tiny_rec, tmp_path_factory):
     return copy_with_pose_error(tiny_rec, tmp_path_factory.mktemp("jump") / "rec", _jump_errors)
 
 
+@pytest.mark.slow
 def test_mesh_refinement_halves_ate_with_jumps(jump_rec):
     rec = Recording.open(jump_rec)
     _, gt, gt_depth = true_poses(jump_rec)
@@ -55,6 +56,7 @@ def test_mesh_refinement_halves_ate_with_jumps(jump_rec):
     assert res.factor_counts["mesh"] >= 10
 
 
+@pytest.mark.slow
 def test_pv_and_ahat_stay_consistent(jump_rec):
     rec = Recording.open(jump_rec)
     res = refine_recording(rec, load_config(RefineConfig, None, MESH_ONLY + ["mesh_stride=20"]))
@@ -64,6 +66,7 @@ def test_pv_and_ahat_stay_consistent(jump_rec):
     assert np.abs(rel_after - rel_before).max() < 1e-9
 
 
+@pytest.mark.slow
 def test_no_harm_without_pose_error(exact_rec):
     """With exact reported poses the refinement barely moves them. The target (5 mm / 0.2 deg) is
     met on the 100-s benchmark recordings (tools/bench_refine.py --no-error: 3.5 mm / 0.07 deg); on
@@ -75,6 +78,7 @@ def test_no_harm_without_pose_error(exact_rec):
     assert res.change["rot_rms_deg"] < 0.25
 
 
+@pytest.mark.slow
 def test_corrupted_stretch_spike_rejected(tiny_rec, tmp_path):
     """Missing depth frames and a 1 m / 20 deg pose spike: refined without error, the spike rejected."""
     root = copy_with_pose_error(tiny_rec, tmp_path / "rec", no_pose_error, frames=90)
@@ -117,6 +121,7 @@ def test_refinement_factors_key_scheme(jump_rec):
     assert rg.graph.size() == len(rec) * 2 + len(rec) - 1  # jitter + prior + drift
 
 
+@pytest.mark.slow
 def test_cli_refine_writes_outputs_and_apply_poses(jump_rec, tmp_path, capsys):
     out = tmp_path / "refined"
     assert main(["refine", str(jump_rec), "--out", str(out), "--quiet", "--set", "refine.icp=false",
@@ -151,6 +156,7 @@ def test_apply_poses_rejects_other_timestamps(jump_rec, tmp_path):
         apply_poses(rec, tmp_path / "nope")
 
 
+@pytest.mark.slow
 def test_colmap_relative_factors_matchtrue_poses(tiny_rgb_rec):
     """SIFT + matching + triangulation at the reported poses + pose-prior BA: the keyframe-to-keyframe
     motions it measures agree with the truth to millimetres."""

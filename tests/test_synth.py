@@ -24,6 +24,7 @@ def tree_digest(root):
     return h.hexdigest()
 
 
+@pytest.mark.slow
 def test_same_seed_same_bytes(tmp_path):
     a = make_recording(tmp_path / "a", 11, "frames=12", "pv.rgb=true", "mvpe_photo_size=32")
     b = make_recording(tmp_path / "b", 11, "frames=12", "pv.rgb=true", "mvpe_photo_size=32")
@@ -32,6 +33,7 @@ def test_same_seed_same_bytes(tmp_path):
     assert tree_digest(a) != tree_digest(c)
 
 
+@pytest.mark.slow
 def test_rgb_frames_written(tiny_rgb_rec):
     rec = Recording.open(tiny_rgb_rec)
     img = rec.rgb(5)
@@ -184,6 +186,7 @@ def test_frontend_common_random_numbers():
     assert kept > 100 and n_clutter > 30
 
 
+@pytest.mark.slow
 def test_redetect_reproduces_and_changes_only_detections(tmp_path):
     from conftest import TINY
 

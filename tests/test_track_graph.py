@@ -217,7 +217,7 @@ def test_a_look_alike_carried_far_away_does_not_end_the_stand():
 
 @pytest.mark.parametrize("lo,hi,max_len,pad", [(0, 200, 60, 10), (5, 66, 60, 10), (3, 40, 60, 10), (0, 97, 25, 10)])
 def test_long_windows_are_cut_into_pieces_whose_owned_ranges_partition_them(lo, hi, max_len, pad):
-    from egograph.track.graph import _window_pieces
+    from egograph.track.chain import _window_pieces
 
     pieces = _window_pieces([(lo, hi)], max_len, pad)
     owned = np.concatenate([np.arange(a, b) for _, _, a, b in pieces])

@@ -15,10 +15,14 @@ from egograph.io.annotations import load_annotations
 from egograph.io.poses import read_pose_json
 from egograph.poses.evaluate import evaluate_trajectory
 from egograph.poses.refine import hololens_constraints, world_corrections
-from egograph.steps.pipeline import lift, open_recording, regt_estimates, track_graph, track_graph_joint
+from egograph.steps.joint import track_joint as track_graph_joint
+from egograph.steps.lift import lift
+from egograph.steps.recording import open_recording
+from egograph.steps.regt import regt_estimates
 from egograph.steps.settings import EgographConfig
 from egograph.track.intervals import read_intervals_json
 from egograph.track.joint import move_observations, unmove_points
+from egograph.track.registry import graph_with_scene as track_graph
 from egograph.track.regt import box_detections, interval_stands
 
 NO_MESH = ["refine.mesh=false"]
@@ -99,6 +103,7 @@ def test_regt_joint_poses_find_the_jump_the_pose_graph_alone_cannot(jump_rec):
     assert len(est) == len(ann.motion)
 
 
+@pytest.mark.slow
 def test_joint_mode_does_no_harm_with_exact_poses(exact_rec):
     root, truth = exact_rec, true_poses(exact_rec)[1]
     cfg = load_config(EgographConfig, None, NO_MESH)
@@ -115,14 +120,15 @@ def test_joint_mode_does_no_harm_with_exact_poses(exact_rec):
     assert joint.metadata["joint_poses"]["stands"] == jp.report["stands"]
 
 
+@pytest.mark.slow
 def test_cli_track_joint_poses_writes_results_intervals_and_poses(tiny_rec, tmp_path, capsys):
     out = tmp_path / "res"
     code = main(["track", str(tiny_rec), "--tracker", "graph", "--detections", "mvpe", "--out", str(out),
                  "--joint-poses", "--quiet", "--set", "refine.mesh=false"])
     assert code == 0
     rec = open_recording(tiny_rec, load_config(EgographConfig, None))
-    assert len(list(out.iterdir())) == len(rec)
-    intervals, meta = read_intervals_json(tmp_path / "res.intervals.json")
+    assert len(list(out.glob("*.txt"))) == len(rec) and (out / "config.yaml").is_file()
+    intervals, meta = read_intervals_json(tmp_path / "res" / "intervals.json")
     assert meta["tracker"] == "graph (joint poses)" and intervals
     ts, pv, ok = read_pose_json(tmp_path / "res.poses" / "pv_pose.json")
     assert np.array_equal(ts, rec.timestamps) and ok.all()
@@ -136,6 +142,7 @@ def test_cli_joint_poses_needs_the_offline_graph(tiny_rec, tmp_path, capsys):
     assert "--joint-poses needs --tracker graph" in capsys.readouterr().err
 
 
+@pytest.mark.slow
 def test_cli_regt_joint_poses_writes_centres_and_poses(tiny_rec, tmp_path):
     out = tmp_path / "regt"
     assert main(["regt", str(tiny_rec), "--out", str(out), "--joint-poses", "--quiet",

@@ -6,7 +6,8 @@ import numpy as np
 import pytest
 
 from egograph.core.config import load_config
-from egograph.steps.pipeline import lift, open_recording
+from egograph.steps.lift import lift
+from egograph.steps.recording import open_recording
 from egograph.steps.settings import EgographConfig
 from egograph.track.config import NegativeConfig
 from egograph.track.negative import NegativeEvidence

@@ -10,7 +10,7 @@ import pytest
 from egograph.core.config import load_config
 from egograph.geometry.lift import lift_recording
 from egograph.io.annotations import CenterAnnotation, load_annotations, read_centers, write_centers
-from egograph.steps.pipeline import open_recording
+from egograph.steps.recording import open_recording
 from egograph.steps.settings import EgographConfig
 from egograph.track.config import RegtConfig
 from egograph.track.regt import as_center_annotations, audit_text, box_detections, reestimate_centres

@@ -3,7 +3,7 @@
 
     .venv/bin/python tools/bench_graph_speed.py [--frames 1000 10000 50000] [--set detections]
 
-Long recordings are made by laying the cached benchmark observations (tools/benchset.py,
+Long recordings are made by laying the cached benchmark observations (egograph.synth.benchset,
 robust lifting, 8 instances, 3000 frames each) end to end in time, seed after seed, so the
 detection statistics are those of the benchmark. Timed: `graph_tracker` offline (chunking,
 graph building, Levenberg-Marquardt per instance, segments, interval re-solves with
@@ -15,25 +15,23 @@ baseline on the same observations as a same-run reference.
 from __future__ import annotations
 
 import argparse
-import sys
 import time
 from pathlib import Path
 
 import numpy as np
 
-sys.path.insert(0, str(Path(__file__).resolve().parent))
-from bench_trackers import REPO, cache_key  # noqa: E402
-from benchset import DEFAULT_CACHE  # noqa: E402
+from egograph.core.config import load_config
+from egograph.core.resources import default_config
+from egograph.geometry.observations import Observations
+from egograph.steps.recording import open_recording
+from egograph.steps.settings import EgographConfig
+from egograph.synth.benchset import cached_observations
+from egograph.track.baselines import kalman_tracker
+from egograph.track.config import BaselineConfig, GraphConfig
+from egograph.track.graph import graph_tracker
 
-from egograph.core.config import load_config  # noqa: E402
-from egograph.geometry.observations import Observations  # noqa: E402
-from egograph.steps.settings import EgographConfig  # noqa: E402
-from egograph.track.baselines import kalman_tracker  # noqa: E402
-from egograph.track.config import (
-    BaselineConfig,  # noqa: E402
-    GraphConfig,  # noqa: E402
-)
-from egograph.track.graph import graph_tracker  # noqa: E402
+REPO = Path(__file__).resolve().parents[1]
+DEFAULT_CACHE = REPO / ".cache" / "bench"
 
 T0 = 133_400_000_000_000_000
 FRAME = 333_333
@@ -42,18 +40,17 @@ FRAME = 333_333
 def long_stream(n_frames: int, det_set: str, cache: Path) -> tuple[Observations, np.ndarray]:
     """Benchmark observations laid end to end to ``n_frames`` frames (ticks on a 30 fps grid)."""
     parts, offset, k = [], 0, 0
-    cfg = load_config(EgographConfig, REPO / "configs" / "default.yaml")
+    cfg = load_config(EgographConfig, default_config())
     cfg.lift.mode = "robust"
-    files = []
+    streams = []
     for seed in range(1, 6):
         root = cache / "f3000" / f"seed{seed}"
-        path = root / "observations" / f"{det_set}_robust_{cache_key(root, cfg)}.npz" if root.is_dir() else None
-        if path is not None and path.exists():  # reported poses, the default config
-            files.append(path)
-    if not files:
-        raise SystemExit(f"no cached robust observations under {cache}; run tools/bench_trackers.py first")
+        if root.is_dir():  # reported poses, the default config; lifted when not cached yet
+            streams.append(cached_observations(open_recording(root, cfg), det_set, cfg)[0])
+    if not streams:
+        raise SystemExit(f"no benchmark recordings under {cache / 'f3000'}; run tools/bench_trackers.py first")
     while offset < n_frames:
-        obs = Observations.load(files[k % len(files)])
+        obs = streams[k % len(streams)]
         obs = obs.select(obs.frame < n_frames - offset)
         obs.frame = obs.frame + offset
         obs.timestamps = T0 + FRAME * obs.frame.astype(np.int64)

@@ -4,7 +4,7 @@
     .venv/bin/python tools/bench_joint.py [--seeds 1 2 3 4 5] [--set joint.noise_scale=1]
     .venv/bin/python tools/bench_joint.py --synth-set pose_error.drift_trans=... # a harder pose setting
 
-Per cached benchmark recording (tools/benchset.py) and detection set, with the same robust
+Per cached benchmark recording (egograph.synth.benchset) and detection set, with the same robust
 observations as tools/bench_trackers.py, four pose sources for the offline graph tracker:
 
 * ``reported``: the recording's poses;
@@ -22,28 +22,41 @@ those poses gives: world = AHAT point · AHAT pose, and the AHAT pose moves with
 from __future__ import annotations
 
 import argparse
-import sys
 import time
 from pathlib import Path
 
 import numpy as np
 
-sys.path.insert(0, str(Path(__file__).resolve().parent))
-from bench_trackers import cache_key  # noqa: E402
-from benchset import DEFAULT_CACHE, benchmark_set  # noqa: E402
-from graph_extras import gt_intervals, score  # noqa: E402
-
-from egograph.core.config import load_config  # noqa: E402
-from egograph.geometry.observations import Observations  # noqa: E402
-from egograph.io.poses import read_pose_json  # noqa: E402
-from egograph.poses.evaluate import evaluate_trajectory  # noqa: E402
-from egograph.poses.refine import refinement_factors, world_corrections  # noqa: E402
-from egograph.steps.pipeline import lift, open_recording, track_graph, track_graph_joint  # noqa: E402
-from egograph.steps.settings import EgographConfig  # noqa: E402
-from egograph.track.joint import joint_poses, move_observations, with_joint_poses  # noqa: E402
+from egograph.core.config import load_config
+from egograph.core.resources import default_config, synth_config
+from egograph.eval.metrics import IntervalTally, gt_intervals
+from egograph.eval.report import EvalReport
+from egograph.io.poses import read_pose_json
+from egograph.poses.evaluate import evaluate_trajectory
+from egograph.poses.refine import refinement_factors, world_corrections
+from egograph.steps.evaluate import evaluate
+from egograph.steps.joint import track_joint as track_graph_joint
+from egograph.steps.recording import open_recording
+from egograph.steps.settings import EgographConfig
+from egograph.steps.track import write_results
+from egograph.synth.benchset import benchmark_set, cached_observations
+from egograph.track.joint import joint_poses, move_observations, with_joint_poses
+from egograph.track.registry import graph_with_scene as track_graph
 
 REPO = Path(__file__).resolve().parents[1]
+DEFAULT_CACHE = REPO / ".cache" / "bench"
+SYNTH_CONFIG = synth_config("svoe")
 ROWS = ("reported", "refined", "joint", "joint, no mesh")
+
+
+def score(reports: dict, tallies: dict, det_set: str, name: str, rec, res: Path, per_frame: dict,
+          observable: list) -> None:
+    """Write one row's results to ``res``, evaluate them, and tally the true intervals recovered."""
+    write_results(res, rec, per_frame)
+    full = evaluate(rec, res)
+    reports[det_set].setdefault(name, EvalReport())
+    reports[det_set][name].add(res.parent.name, next(iter(full.sequences.values())).result, full.intervals, None)
+    tallies.setdefault((det_set, name), IntervalTally()).add(observable, res, rec.timestamps)
 
 
 def main() -> None:
@@ -55,12 +68,12 @@ def main() -> None:
     ap.add_argument("--set", dest="overrides", action="append", default=[], help="pipeline override")
     ap.add_argument("--out", type=Path, default=REPO / ".cache" / "bench_joint")
     args = ap.parse_args()
-    cfg = load_config(EgographConfig, REPO / "configs" / "default.yaml", args.overrides)
-    cfg_nomesh = load_config(EgographConfig, REPO / "configs" / "default.yaml", [*args.overrides, "refine.mesh=false"])
-    roots = benchmark_set(args.seeds, args.frames, overrides=args.synth_overrides, cache=DEFAULT_CACHE,
-                          progress=False)
-    reports: dict[str, dict] = {"svoe": {}, "mvpe": {}}   # graph_extras.score: EvalReport per row
-    extras: dict[tuple[str, str], dict] = {}               # ... and the true intervals recovered
+    cfg = load_config(EgographConfig, default_config(), args.overrides)
+    cfg_nomesh = load_config(EgographConfig, default_config(), [*args.overrides, "refine.mesh=false"])
+    roots = benchmark_set(args.seeds, args.frames, config=SYNTH_CONFIG, overrides=args.synth_overrides,
+                          cache=DEFAULT_CACHE, progress=False)
+    reports: dict[str, dict] = {"svoe": {}, "mvpe": {}}   # score(): EvalReport per row
+    tallies: dict[tuple[str, str], IntervalTally] = {}     # ... and the true intervals recovered
     ate: dict[tuple[str, str], list] = {}
     secs: dict[str, float] = {}
 
@@ -86,18 +99,13 @@ def main() -> None:
                 f"refined {100 * ate[('refined', '-')][-1].ate_rmse_m:.2f}"]
         for det_set in ("svoe", "mvpe"):
             cfg.lift.mode = "robust"
-            path = root / "observations" / f"{det_set}_robust_{cache_key(root, cfg)}.npz"
-            if path.exists():
-                obs = Observations.load(path)
-            else:  # shared with tools/bench_trackers.py
-                obs, _ = lift(rec, det_set, cfg, progress=False)
-                obs.save(path)
+            obs, _ = cached_observations(rec, det_set, cfg)  # shared with tools/bench_trackers.py
             out = args.out / root.name
             everything = gt_intervals(rec)  # interval recall over all true intervals
 
             def tally(row: str, per_frame: dict) -> None:
-                score(reports, extras, det_set, row, rec, out / f"{det_set}_{row.replace(', ', '_').replace(' ', '_')}",
-                      per_frame, everything, None)
+                res = out / f"{det_set}_{row.replace(', ', '_').replace(' ', '_')}"
+                score(reports, tallies, det_set, row, rec, res, per_frame, everything)
 
             t0 = time.perf_counter()
             tally("reported", track_graph(rec, obs, cfg).per_frame)
@@ -127,11 +135,11 @@ def main() -> None:
     print("|---|---|---|---|---|---|---|---|")
     for row in ROWS:
         for det_set in ("svoe", "mvpe"):
-            c, ex = reports[det_set][row].total, extras[(det_set, row)]
+            c, t = reports[det_set][row].total, tallies[(det_set, row)]
             k = list(c.thresholds).index(0.25)
             p, r = 100 * c.precision[k], 100 * c.recall[k]
             key = (row, det_set) if (row, det_set) in ate else (row, "-")
-            print(f"| {row} | {det_set} | {mean_ate(key)} | {p:.1f} | {r:.1f} | {ex['obs_recovered']}/{ex['obs_true']} |")
+            print(f"| {row} | {det_set} | {mean_ate(key)} | {p:.1f} | {r:.1f} | {t.obs_recovered}/{t.obs_true} |")
     print("\ntime (s, whole set): " + ", ".join(f"{k} {v:.1f}" for k, v in secs.items()))
 
 

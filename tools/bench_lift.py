@@ -17,28 +17,29 @@ else runs on the machine: run it alone.
 from __future__ import annotations
 
 import argparse
-import sys
 import time
 from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
 
 import numpy as np
 
+from egograph.core.resources import synth_config
 from egograph.geometry.config import LiftConfig
-from egograph.geometry.lift import lift_recording, synth_lift_errors
+from egograph.geometry.lift import lift_recording
 from egograph.io.detections import read_detection_dir
 from egograph.io.poses import read_pose_json
 from egograph.io.recording import Recording
+from egograph.synth.benchset import benchmark_set
+from egograph.synth.truth import synth_lift_errors
 
 REPO = Path(__file__).resolve().parents[1]
-sys.path.insert(0, str(REPO / "tools"))
-from benchset import benchmark_set  # noqa: E402
+SYNTH_CONFIG = synth_config("svoe")
 
 
 def recording(cache: Path, frames: int, seed: int) -> Path:
-    """The cached SVOE recording of ``frames`` frames for ``seed`` (tools/benchset.py: generated
+    """The cached SVOE recording of ``frames`` frames for ``seed`` (egograph.synth.benchset: generated
     when missing, detections re-simulated when the front-end changed)."""
-    return benchmark_set([seed], frames, cache=cache, progress=True)[0]
+    return benchmark_set([seed], frames, config=SYNTH_CONFIG, cache=cache, progress=True)[0]
 
 
 def decode_seconds(rec: Recording, frames: list[int], threads: int = 1) -> float:

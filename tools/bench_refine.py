@@ -16,13 +16,15 @@ from __future__ import annotations
 
 import argparse
 import json
-import sys
 import time
 from pathlib import Path
 
+from egograph.core.resources import synth_config
+
 REPO = Path(__file__).resolve().parents[1]
-sys.path.insert(0, str(REPO))
-sys.path.insert(0, str(REPO / "tools"))
+SYNTH_CONFIG = synth_config("svoe")
+DEFAULT_CACHE = REPO / ".cache" / "bench"
+RGB_CACHE = REPO / ".cache" / "bench_rgb"
 
 ROWS = {
     "hololens": ["icp=false", "mesh=false", "colmap=false"],
@@ -33,56 +35,6 @@ ROWS = {
     "all-no-colmap": ["icp=true", "mesh=true", "colmap=false"],
     "mesh+colmap": ["icp=false", "mesh=true", "colmap=true"],
 }
-
-
-def rgb_set(seeds: list[int], frames: int, overrides: list[str]) -> list[Path]:
-    """Cached recordings with PV RGB (slow to generate: about 3 frames/s)."""
-    from benchset import rendered_config
-
-    from egograph.core.config import load_config, to_dict
-    from egograph.synth.config import SynthConfig
-    from egograph.synth.generate import GENERATOR_REVISION, generate
-
-    cfg = load_config(SynthConfig, REPO / "configs" / "synth" / "svoe.yaml", [f"frames={frames}", *overrides])
-    tag = "_".join(o.replace("=", "-").replace(".", "_") for o in overrides)
-    out = []
-    for seed in seeds:
-        root = REPO / ".cache" / "bench_rgb" / f"f{frames}{'_' + tag if tag else ''}" / f"seed{seed}"
-        meta = root / "recording.json"
-        # Refinement never reads the detections: a front-end change does not re-render the set.
-        ok = meta.exists() and json.loads(meta.read_text()).get("revision") == GENERATOR_REVISION \
-            and rendered_config(json.loads(meta.read_text())["config"]) == rendered_config(to_dict(cfg))
-        if not ok:
-            print(f"generating RGB benchmark recording seed {seed} ({frames} frames) -> {root}", flush=True)
-            generate(root, cfg, seed=seed, progress=True)
-        out.append(root)
-    return out
-
-
-def exact_mirror(root: Path) -> Path:
-    """A view of a cached recording with the true poses as the reported ones: the generator's random
-    streams are independent, so this equals generating it with ``pose_error.enabled=false``.
-    Everything but the two pose files is a symlink."""
-    import shutil
-
-    seq = next(p for p in root.iterdir() if (p / "pv_pose.json").is_file())
-    out = root.parent / f"{root.name}_exact"
-    if (out / seq.name / "pv_pose.json").exists():
-        return out
-    tmp = root.parent / f".{root.name}_exact.tmp"
-    shutil.rmtree(tmp, ignore_errors=True)
-    tmp.mkdir()
-    for p in root.iterdir():
-        if p != seq:
-            (tmp / p.name).symlink_to(p.resolve())
-    (tmp / seq.name).mkdir()
-    for p in seq.iterdir():
-        if p.name not in ("pv_pose.json", "depth_ahat_pose.json"):
-            (tmp / seq.name / p.name).symlink_to(p.resolve())
-    for name in ("pv_pose.json", "depth_ahat_pose.json"):
-        shutil.copy(root / "synth_gt" / seq.name / name, tmp / seq.name / name)
-    tmp.rename(out)
-    return out
 
 
 def run(root: Path, rows: list[str], extra: list[str], rpe_delta: int, out_dir: Path | None = None) -> list[dict]:
@@ -151,14 +103,14 @@ def main() -> None:
     ap.add_argument("--out-dir", type=Path, help="also write each row's refined poses to OUT_DIR/<seed>/<row>/")
     a = ap.parse_args()
     syn = list(a.synth_overrides)
-    if a.rgb:
-        roots = rgb_set(a.seeds, a.frames, syn)
-    else:
-        from benchset import benchmark_set
+    from egograph.synth.benchset import benchmark_set, exact_poses_view, rgb_benchmark_set
 
-        roots = benchmark_set(a.seeds, a.frames, overrides=syn)
+    if a.rgb:
+        roots = rgb_benchmark_set(a.seeds, a.frames, config=SYNTH_CONFIG, cache=RGB_CACHE, overrides=syn)
+    else:
+        roots = benchmark_set(a.seeds, a.frames, config=SYNTH_CONFIG, cache=DEFAULT_CACHE, overrides=syn)
     if a.no_error:
-        roots = [exact_mirror(r) for r in roots]
+        roots = [exact_poses_view(r) for r in roots]
     results = []
     for root in roots:
         results += run(root, a.rows, a.overrides, a.rpe_delta, a.out_dir)

@@ -3,7 +3,7 @@
 
     .venv/bin/python tools/bench_regt.py [--seeds 1 2 3 4 5] [--shift-m 0.2] [--share 0.1] [--joint-poses]
 
-For every cached benchmark recording (tools/benchset.py): the annotated 2D boxes (every 5th
+For every cached benchmark recording (egograph.synth.benchset): the annotated 2D boxes (every 5th
 frame when at least a quarter visible) are lifted with robust lifting and the reported
 poses, each annotated interval's centre is re-estimated (``egograph regt``), and compared
 with the true centre in synth_gt. Then a seeded random ``--share`` of the annotated centres
@@ -15,30 +15,28 @@ from __future__ import annotations
 
 import argparse
 import dataclasses
-import hashlib
 import json
-import sys
 import time
 from pathlib import Path
 
 import numpy as np
 
-sys.path.insert(0, str(Path(__file__).resolve().parent))
-from benchset import DEFAULT_CACHE, benchmark_set  # noqa: E402
-
-from egograph.core.config import load_config, to_dict  # noqa: E402
-from egograph.geometry.lift import lift_recording  # noqa: E402
-from egograph.geometry.observations import Observations  # noqa: E402
-from egograph.io.annotations import load_annotations  # noqa: E402
-from egograph.io.poses import read_pose_json  # noqa: E402
-from egograph.poses.evaluate import evaluate_trajectory  # noqa: E402
-from egograph.poses.refine import apply_poses, world_corrections  # noqa: E402
-from egograph.steps.pipeline import open_recording, regt_estimates  # noqa: E402
-from egograph.steps.settings import EgographConfig  # noqa: E402
-from egograph.track.joint import move_observations  # noqa: E402
-from egograph.track.regt import box_detections, reestimate_centres  # noqa: E402
+from egograph.core.config import load_config
+from egograph.core.resources import default_config, synth_config
+from egograph.io.annotations import load_annotations
+from egograph.io.poses import read_pose_json
+from egograph.poses.evaluate import evaluate_trajectory
+from egograph.poses.refine import apply_poses, world_corrections
+from egograph.steps.recording import open_recording
+from egograph.steps.regt import regt_estimates
+from egograph.steps.settings import EgographConfig
+from egograph.synth.benchset import ANNOTATED_BOXES, benchmark_set, cached_observations
+from egograph.track.joint import move_observations
+from egograph.track.regt import reestimate_centres
 
 REPO = Path(__file__).resolve().parents[1]
+DEFAULT_CACHE = REPO / ".cache" / "bench"
+SYNTH_CONFIG = synth_config("svoe")
 
 
 def main() -> None:
@@ -54,29 +52,20 @@ def main() -> None:
     ap.add_argument("--joint-poses", action="store_true", help="regt --joint-poses: poses solved with the "
                                                                "intervals' landmarks and the refinement factors")
     args = ap.parse_args()
-    cfg = load_config(EgographConfig, REPO / "configs" / "default.yaml", args.overrides)
+    cfg = load_config(EgographConfig, default_config(), args.overrides)
     rng = np.random.default_rng(args.seed)
     errors, n_views = [], []
     shifted_flags, clean_flags = [], []
     no_view = 0
     ates = []
     t_lift = t_solve = 0.0
-    for seed, root in zip(args.seeds, benchmark_set(args.seeds, args.frames, cache=DEFAULT_CACHE)):
+    for seed, root in zip(args.seeds, benchmark_set(args.seeds, args.frames, config=SYNTH_CONFIG, cache=DEFAULT_CACHE)):
         rec = open_recording(root, cfg)
-        key = [cfg.lift.result_knobs(), to_dict(cfg.io)]
         if args.poses:
-            poses = Path(args.poses.format(seed=seed))
-            rec = apply_poses(rec, poses)
-            key.append(hashlib.sha256((poses / "pv_pose.json").read_bytes()).hexdigest())
+            rec = apply_poses(rec, Path(args.poses.format(seed=seed)))
         ann = load_annotations(rec.annotation_dir)
-        blob = json.dumps(key, sort_keys=True)
-        path = root / "observations" / f"boxes_{hashlib.sha256(blob.encode()).hexdigest()[:12]}.npz"
         t0 = time.perf_counter()
-        if path.exists():
-            obs = Observations.load(path)
-        else:
-            obs, _ = lift_recording(rec, box_detections(ann), cfg.lift, progress=False)
-            obs.save(path)
+        obs, _ = cached_observations(rec, ANNOTATED_BOXES, cfg)  # the annotated boxes, lifted
         t_lift += time.perf_counter() - t0
         truth = {(g["instance"], g["t_start"]): np.array(g["xyz"])
                  for g in json.loads((rec.synth_gt_dir / "intervals.json").read_text())}

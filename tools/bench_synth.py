@@ -14,6 +14,7 @@ import time
 from pathlib import Path
 
 from egograph.core.config import load_config
+from egograph.core.resources import synth_config
 from egograph.io.recording import Recording
 from egograph.synth.config import SynthConfig
 from egograph.synth.generate import generate
@@ -23,7 +24,7 @@ REPO = Path(__file__).resolve().parents[1]
 
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    ap.add_argument("--config", default=str(REPO / "configs" / "synth" / "svoe.yaml"))
+    ap.add_argument("--config", default=str(synth_config("svoe")))
     ap.add_argument("--frames", type=int, default=3000, help="frames of the depth-only run")
     ap.add_argument("--rgb-frames", type=int, default=300, help="frames of the run with RGB (0 to skip)")
     ap.add_argument("--seed", type=int, default=1)

@@ -1,5 +1,6 @@
 #!/usr/bin/env bash
-# Create or reuse .venv and install egograph with everything it needs (sourced by demo.sh/test.sh).
+# Create or reuse .venv and install egograph (editable) with its test runner and optional extras
+# (sourced by demo.sh/test.sh).
 # Re-installs only when setup.cfg changes. Installs Open3D's system library (libusb-1.0-0) when missing.
 set -euo pipefail
 REPO="$(cd "$(dirname "${BASH_SOURCE[0]}")/.." && pwd)"
@@ -24,7 +25,14 @@ WANT="$(sha256sum "$REPO/setup.cfg" "$REPO/pyproject.toml" | sha256sum | cut -d'
 if [ ! -f "$STAMP" ] || [ "$(cat "$STAMP")" != "$WANT" ] || ! "$VENV/bin/python" -c 'import egograph' 2>/dev/null; then
   echo "installing egograph and its dependencies into $VENV ..." >&2
   "$VENV/bin/python" -m pip install -q --upgrade pip >&2
-  "$VENV/bin/python" -m pip install -q -e "$REPO[test]" >&2
+  # setup.cfg asks for open3d-cpu on Linux x86_64; open3d and open3d-cpu install the same files, so a
+  # .venv made before the switch drops the full build first rather than mixing the two.
+  if [ "$(uname -sm)" = "Linux x86_64" ] && "$VENV/bin/python" -m pip show -q open3d >/dev/null 2>&1; then
+    "$VENV/bin/python" -m pip uninstall -q -y open3d >&2
+  fi
+  # Editable (the checkout's files are the ones run), with the test runner and the optional
+  # COLMAP (refine.colmap) and KISS-ICP (refine.icp) extras.
+  "$VENV/bin/python" -m pip install -q -e "$REPO[test,colmap,icp]" >&2
   echo "$WANT" > "$STAMP"
 fi
 export PATH="$VENV/bin:$PATH"

@@ -1,15 +1,17 @@
-"""What every sub-command shares: the console, the config and recording arguments, ``--show-config``."""
+"""What every sub-command shares: the console, the config and recording arguments, ``--show-config``,
+and the tables a person reads after a run (sized for an 80-column terminal)."""
 
 from __future__ import annotations
 
 import argparse
 from pathlib import Path
 
-from egograph.core.config import describe
+from egograph.core.config import describe, load_config
+from egograph.core.resources import config_argument, default_config, synth_config
+from egograph.core.units import TICKS_PER_SECOND
 
-REPO = Path(__file__).resolve().parents[2]
-
-DEFAULT_CONFIG = REPO / "configs" / "default.yaml"
+DEFAULT_CONFIG = default_config()
+SYNTH_CONFIG = synth_config("svoe")
 
 
 def _console():
@@ -19,10 +21,16 @@ def _console():
 
 
 def _add_config_args(p: argparse.ArgumentParser, default: Path | None) -> None:
-    p.add_argument("--config", type=Path, default=default, help=f"YAML config (default: {default})")
+    p.add_argument("--config", type=config_argument, default=default,
+                   help="YAML config: a file, or a packaged name such as 'default' or 'synth/tiny' "
+                        f"(default: {Path(default).name if default else 'none'})")
     p.add_argument("--set", dest="overrides", action="append", default=[], metavar="KEY=VALUE",
-                   help="override a config knob (dotted key), e.g. --set lift.mode=reference; repeatable")
-    p.add_argument("--show-config", action="store_true", help="print every knob with its value and documentation, then exit")
+                   help="override a config knob (dotted key, YAML value), e.g. --set lift.mode=reference; repeatable")
+    p.add_argument("--show-config", action="store_true",
+                   help="print every knob with its value and meaning, then exit (needs no other argument)")
+    if not any("--format" in a.option_strings for a in p._actions):  # eval/compare have their own --format
+        p.add_argument("--format", dest="config_format", choices=("table", "yaml"), default="table",
+                       help="with --show-config: a table, or YAML that --config reads back")
 
 
 def _add_rec_args(p: argparse.ArgumentParser) -> None:
@@ -32,12 +40,70 @@ def _add_rec_args(p: argparse.ArgumentParser) -> None:
     p.add_argument("--annotations", type=Path, help="annotation folder when not found beside the recording")
 
 
-def _show_config(cfg) -> None:
+def _show_config(cfg, fmt: str = "table") -> None:
+    if fmt == "yaml":
+        from egograph.steps.outputs import config_yaml
+
+        print(config_yaml(cfg), end="")
+        return
     from rich.table import Table
 
-    t = Table(title="configuration")
-    for col in ("knob", "value", "meaning"):
-        t.add_column(col)
+    t = Table(title="configuration", show_lines=False)
+    t.add_column("knob", overflow="fold")
+    t.add_column("value", overflow="fold", max_width=18)
+    t.add_column("meaning", overflow="fold", ratio=1)
     for key, value, doc in describe(cfg):
         t.add_row(key, repr(value), doc)
     _console().print(t)
+
+
+def pipeline_config(args):
+    """The pipeline configuration of a command: ``--config`` <- ``--set`` <- ``--lift``."""
+    from egograph.steps.settings import EgographConfig
+
+    cfg = load_config(EgographConfig, args.config, args.overrides)
+    if getattr(args, "lift", None):
+        cfg.lift.mode = args.lift
+        cfg.lift.check()
+    return cfg
+
+
+def seconds(t: int, t0: int) -> str:
+    return f"{(int(t) - int(t0)) / TICKS_PER_SECOND:.1f}"
+
+
+def print_intervals(con, intervals, rec, metadata: dict, labels=None) -> None:
+    """The position intervals as a table that fits 80 columns."""
+    from rich.table import Table
+
+    t0 = int(rec.timestamps[0])
+    t = Table(title=f"position intervals ({metadata.get('tracker')}): {len(intervals)}")
+    for col, kw in (("instance", {"overflow": "fold", "max_width": 14}), ("from s", {}), ("to s", {}),
+                    ("x y z (m)", {}), ("σ cm", {}), ("dets", {}), ("conf", {}), ("ended by", {"overflow": "fold"})):
+        t.add_column(col, justify="right" if col not in ("instance", "ended by") else "left", **kw)
+    for iv in intervals:
+        name = labels[iv.instance] if labels and iv.instance < len(labels) else str(iv.instance)
+        t.add_row(name, seconds(iv.t_start, t0) + ("*" if iv.backfilled else ""), seconds(iv.t_end, t0),
+                  " ".join(f"{v:.2f}" for v in iv.xyz), f"{100 * iv.sigma_m:.1f}", str(iv.n_observations),
+                  f"{iv.confidence:.2f}", iv.ended_by)
+    con.print(t)
+    if metadata.get("backfilled"):
+        con.print("* back-filled to the first frame (offline mode: before its first detection an instance is "
+                  "reported at its first interval)")
+
+
+def why_no_intervals(obs, rec, graph_cfg) -> str:
+    """A person-readable reason why the graph found no position interval."""
+    import numpy as np
+
+    dur = (int(rec.timestamps[-1]) - int(rec.timestamps[0])) / TICKS_PER_SECOND if len(rec) else 0.0
+    usable = obs.valid & (obs.score >= np.float32(graph_cfg.score_threshold))
+    per = np.bincount(obs.instance[usable], minlength=1) if usable.any() else np.zeros(1, int)
+    need = graph_cfg.min_observations
+    if not len(obs):
+        return "no detections at all (check --detections)"
+    if not usable.any():
+        return (f"none of the {len(obs)} detections is lifted with a score >= graph.score_threshold "
+                f"({graph_cfg.score_threshold})")
+    return (f"a stand needs at least {need} consistent detections (graph.min_observations); the best-seen instance "
+            f"has {int(per.max())} usable ones over {dur:.1f} s of recording")

@@ -1,6 +1,7 @@
-"""``egograph`` command line: one sub-command per use.
+"""``egograph`` command line: one sub-command per use, each a thin shell over a step of
+:mod:`egograph.steps`.
 
-    egograph synth OUT --config configs/synth/svoe.yaml --seed 1 --frames 3000
+    egograph synth OUT --config synth/svoe --seed 1 --frames 3000
     egograph info REC
     egograph lift REC --detections svoe --out OBS.npz
     egograph track REC --tracker graph|graph-causal|memory|kf --detections svoe --out RESULTS
@@ -8,9 +9,11 @@
     egograph smooth REC RESULTS --out RESULTS_SMOOTHED
     egograph eval REC RESULTS [--json OUT]
     egograph compare REC RESULTS_A RESULTS_B ... [--out DIR]
+    egograph refine REC --out DIR
+    egograph eval-poses REC [POSES]
     egograph demo [OUT]
 
-Bad input ends with one line naming the file (and line) and exit code 2.
+Bad input ends with one line naming the file (and line, or the config key) and exit code 2.
 """
 
 from __future__ import annotations
@@ -22,45 +25,37 @@ import time
 import warnings
 from pathlib import Path
 
-from egograph.cli.common import DEFAULT_CONFIG, REPO, _add_config_args, _add_rec_args, _console, _show_config
+from egograph import __version__
+from egograph.cli.common import (
+    DEFAULT_CONFIG,
+    SYNTH_CONFIG,
+    _add_config_args,
+    _add_rec_args,
+    _console,
+    _show_config,
+    pipeline_config,
+    print_intervals,
+    why_no_intervals,
+)
 from egograph.core.config import load_config
-from egograph.core.errors import ConfigError
-
-
-def _pipeline_config(args):
-    from egograph.steps.settings import EgographConfig
-
-    return load_config(EgographConfig, args.config, args.overrides)
-
-
-def _lifting_config(args):
-    """Pipeline config with ``--lift`` applied; None after ``--show-config`` printed it."""
-    cfg = _pipeline_config(args)
-    if args.lift:
-        cfg.lift.mode = args.lift
-    if args.show_config:
-        _show_config(cfg)
-        return None
-    return cfg
-
-
+from egograph.core.errors import ConfigError, EgographError
 
 
 def _open(args, cfg):
-    from egograph.steps.pipeline import open_recording
+    from egograph.steps.recording import open_recording
 
-    rec = open_recording(args.rec, cfg, calibration=args.calibration, annotations=args.annotations,
-                         sequence=args.sequence)
-    if getattr(args, "poses", None):
-        from egograph.poses.refine import apply_poses
-
-        rec = apply_poses(rec, args.poses)
-    return rec
+    return open_recording(args.rec, cfg, calibration=args.calibration, annotations=args.annotations,
+                          sequence=args.sequence, poses=getattr(args, "poses", None))
 
 
 def _add_poses_arg(p: argparse.ArgumentParser) -> None:
     p.add_argument("--poses", type=Path, help="use refined poses (a folder from `egograph refine`) instead of the "
                                               "recording's")
+
+
+def _add_lift_arg(p: argparse.ArgumentParser) -> None:
+    p.add_argument("--lift", choices=["reference", "robust"],
+                   help="lifting mode (default from config lift.mode: robust); reference = the IT3DEgo notebook's rule")
 
 
 def _add_joint_args(p: argparse.ArgumentParser, default_out: str) -> None:
@@ -70,47 +65,64 @@ def _add_joint_args(p: argparse.ArgumentParser, default_out: str) -> None:
     p.add_argument("--poses-out", type=Path, help=f"joint mode: where to write the solved poses (default {default_out})")
 
 
-def _write_joint_poses(con, rec, jp, cfg, out: Path) -> None:
-    from egograph.poses.refine import write_refined
+def _add_quiet(p: argparse.ArgumentParser) -> None:
+    p.add_argument("--quiet", action="store_true", help="no progress bars")
 
-    write_refined(jp.poses, out, rec, cfg.refine, {"mode": "joint (poses + object landmarks)", "joint": cfg.joint})
+
+def _add_overwrite(p: argparse.ArgumentParser) -> None:
+    p.add_argument("--overwrite", action="store_true",
+                   help="run again even when the output already holds this exact run (same inputs and configuration)")
+
+
+def _print_joint(con, jp, out: Path) -> None:
     ch = jp.report["change"]
     con.print(f"joint poses: {jp.report['stands']} stands, {jp.report['detection_factors']} detection factors; poses "
               f"moved {1000 * ch.get('trans_rms_m', 0):.1f} mm / {ch.get('rot_rms_deg', 0):.3f} deg RMS -> {out}")
 
 
+def _sibling(path: Path, suffix: str) -> Path:
+    path = Path(path)
+    return path.with_name(path.name + suffix)
+
+
 # ------------------------------------------------------------------ sub-commands
 
-def cmd_synth(args) -> int:
+def synth_config(args):
     from egograph.synth.config import SynthConfig
-    from egograph.synth.generate import generate
 
     overrides = list(args.overrides)
-    if args.frames is not None:
+    if getattr(args, "frames", None) is not None:
         overrides.append(f"frames={args.frames}")
-    cfg = load_config(SynthConfig, args.config, overrides)
-    if args.show_config:
-        _show_config(cfg)
-        return 0
+    return load_config(SynthConfig, args.config, overrides)
+
+
+def cmd_synth(args) -> int:
+    from egograph.steps.synth import synth
+
+    cfg = synth_config(args)
     if args.redetect:
         from egograph.synth.generate import redetect
 
         counts = redetect(args.out, cfg)
         _console().print(f"re-simulated detections in {args.out}: " + ", ".join(f"{k} {v}" for k, v in counts.items()))
         return 0
-    r = generate(args.out, cfg, seed=args.seed, progress=not args.quiet)
-    _console().print(f"wrote {r.root} ({r.frames} frames, {len(r.instances)} instances, {r.n_moves} moves, "
-                     f"{r.n_intervals} stationary intervals) in {r.seconds:.1f} s ({r.fps_generation:.1f} frames/s)")
+    r = synth(args.out, cfg, seed=args.seed, overwrite=args.overwrite, progress=not args.quiet)
+    if r is None:
+        _console().print(f"{args.out} already holds this recording (seed {args.seed}, same configuration); "
+                         f"--overwrite generates it again")
+    else:
+        _console().print(f"wrote {r.root} ({r.frames} frames, {len(r.instances)} instances, {r.n_moves} moves, "
+                         f"{r.n_intervals} stationary intervals) in {r.seconds:.1f} s ({r.fps_generation:.1f} frames/s)")
     if not args.quiet:
         cmd_info(argparse.Namespace(rec=args.out, sequence=None, calibration=None, annotations=None, json=None,
-                                    config=DEFAULT_CONFIG, overrides=[], show_config=False))
+                                    config=DEFAULT_CONFIG, overrides=[]))
     return 0
 
 
 def cmd_info(args) -> int:
     from egograph.steps.info import print_summary, summarize
 
-    cfg = _pipeline_config(args)
+    cfg = pipeline_config(args)
     rec = _open(args, cfg)
     s = summarize(rec)
     print_summary(s, _console())
@@ -122,21 +134,22 @@ def cmd_info(args) -> int:
 
 
 def cmd_lift(args) -> int:
-    from egograph.steps.pipeline import lift
+    from egograph.steps.lift import lift
 
-    cfg = _lifting_config(args)
-    if cfg is None:
-        return 0
+    cfg = pipeline_config(args)
     rec = _open(args, cfg)
     t0 = time.perf_counter()
-    obs, report = lift(rec, args.detections, cfg, progress=not args.quiet)
+    obs, report = lift(rec, args.detections, cfg, args.out, overwrite=args.overwrite, progress=not args.quiet)
     dt = time.perf_counter() - t0
-    obs.save(args.out)
     if args.lifted_dir:
         from egograph.geometry.lift import write_lifted_dir
 
         write_lifted_dir(args.lifted_dir, obs, rec.timestamps)
     con = _console()
+    if report is None:
+        con.print(f"{args.out} already holds these observations (same detections, poses and lift configuration); "
+                  f"--overwrite lifts again")
+        return 0
     con.print(f"lifted {int(obs.valid.sum())} of {len(obs)} detections ({cfg.lift.mode} mode) in {dt:.1f} s -> {args.out}")
     con.print(report.summary())
     return 0
@@ -144,160 +157,124 @@ def cmd_lift(args) -> int:
 
 def cmd_track(args) -> int:
     from egograph.geometry.observations import Observations
-    from egograph.steps.pipeline import (
-        GRAPH_TRACKERS,
-        evaluate,
-        lift,
-        track,
-        track_graph,
-        tracker_names,
-        write_results,
-    )
+    from egograph.steps.track import track
+    from egograph.track.registry import INTERVAL_TRACKERS, get_tracker
 
-    cfg = _lifting_config(args)
-    if cfg is None:
-        return 0
-    if args.tracker not in tracker_names():
-        raise ConfigError(f"--tracker {args.tracker}: unknown; available: {', '.join(tracker_names())}")
+    cfg = pipeline_config(args)
+    get_tracker(args.tracker)
+    if args.joint_poses and args.tracker != "graph":
+        raise ConfigError(f"--joint-poses needs --tracker graph (offline), not {args.tracker}")
     rec = _open(args, cfg)
     con = _console()
     t0 = time.perf_counter()
     if args.observations:
         obs = Observations.load(args.observations)
     else:
+        from egograph.steps.lift import lift
+
         obs, report = lift(rec, args.detections, cfg, progress=not args.quiet)
         con.print(report.summary())
     t1 = time.perf_counter()
-    intervals_path = jp = None
-    if args.joint_poses and args.tracker != "graph":
-        raise ConfigError(f"--joint-poses needs --tracker graph (offline), not {args.tracker}")
+    jp = None
     if args.joint_poses:
-        from egograph.steps.pipeline import track_graph_joint
+        from egograph.steps import outputs
+        from egograph.steps.joint import track_joint
+        from egograph.steps.track import write_result
 
-        result, jp = track_graph_joint(rec, obs, cfg, progress=not args.quiet)
-        per_frame = result.per_frame
-        intervals_path = args.intervals or _sibling(args.out, ".intervals.json")
-    elif args.tracker in GRAPH_TRACKERS:
-        result = track_graph(rec, obs, cfg, causal=args.tracker == "graph-causal", progress=not args.quiet)
-        per_frame = result.per_frame
-        intervals_path = args.intervals or _sibling(args.out, ".intervals.json")
+        result, jp = track_joint(rec, obs, cfg, progress=not args.quiet)
+        record = outputs.run_record("track", cfg, {"tracker": "graph (joint poses)",
+                                                   "recording": outputs.recording_digest(rec)})
+        write_result(args.out, rec, result, record, cfg)
     else:
-        per_frame = track(rec, args.tracker, obs, cfg)
+        result = track(rec, args.tracker, obs, cfg, args.out, overwrite=args.overwrite, progress=not args.quiet)
     t2 = time.perf_counter()
-    write_results(args.out, rec, per_frame)
-    n_pred = sum(len(v) for v in per_frame.values())
-    con.print(f"{args.tracker}: {n_pred} predictions over {len(rec)} frames -> {args.out} "
+    con.print(f"{args.tracker}: {result.n_predictions} predictions over {len(rec)} frames -> {args.out} "
               f"(lift {t1 - t0:.1f} s, track {t2 - t1:.2f} s)")
-    if intervals_path is not None:
-        from egograph.track.intervals import write_intervals_json
+    if result.intervals is not None:
+        from egograph.steps.recording import labels
 
-        write_intervals_json(intervals_path, result.intervals, result.metadata)
-        _print_intervals(con, result.intervals, rec, result.metadata)
-        con.print(f"intervals -> {intervals_path}")
+        print_intervals(con, result.intervals, rec, result.metadata, labels(rec))
+        if not result.intervals:
+            con.print(f"[yellow]no position interval found: {why_no_intervals(obs, rec, cfg.graph)}")
+        if args.intervals:
+            from egograph.track.intervals import write_intervals_json
+
+            write_intervals_json(args.intervals, result.intervals, result.metadata, timestamps=rec.timestamps,
+                                 labels=labels(rec), sequence=rec.name)
+        con.print(f"intervals -> {Path(args.out) / 'intervals.json'}")
+    elif args.tracker in INTERVAL_TRACKERS:
+        con.print("[yellow]the tracker returned no intervals")
     if jp is not None:
-        _write_joint_poses(con, rec, jp, cfg, args.poses_out or _sibling(args.out, ".poses"))
+        from egograph.steps.joint import write_joint_poses
+
+        poses_out = args.poses_out or _sibling(args.out, ".poses")
+        write_joint_poses(rec, jp, cfg, poses_out)
+        _print_joint(con, jp, poses_out)
     if args.eval and rec.annotation_dir is not None:
-        evaluate(rec, args.out).print(con)
+        from egograph.steps.evaluate import evaluate
+
+        evaluate(rec, result).print(con)
     return 0
 
 
-def _sibling(path: Path, suffix: str) -> Path:
-    path = Path(path)
-    return path.with_name(path.name + suffix)
-
-
-def _print_intervals(con, intervals, rec, metadata: dict) -> None:
-    from rich.table import Table
-
-    t0 = int(rec.timestamps[0])
-    t = Table(title=f"position intervals ({metadata.get('tracker')}): {len(intervals)}")
-    for col in ("instance", "from (s)", "to (s)", "x", "y", "z", "sigma (cm)", "detections", "confidence", "ended by"):
-        t.add_column(col, justify="right")
-    for iv in intervals:
-        t.add_row(str(iv.instance), f"{(iv.t_start - t0) / 1e7:.1f}" + ("*" if iv.backfilled else ""),
-                  f"{(iv.t_end - t0) / 1e7:.1f}", *(f"{v:.2f}" for v in iv.xyz), f"{100 * iv.sigma_m:.1f}",
-                  str(iv.n_observations), f"{iv.confidence:.2f}", iv.ended_by)
-    con.print(t)
-    if metadata.get("backfilled"):
-        con.print("* back-filled to the first frame (offline mode: before its first detection an instance is "
-                  "reported at its first interval)")
-
-
 def cmd_regt(args) -> int:
-    from egograph.core.errors import InputError
-    from egograph.geometry.lift import lift_recording
-    from egograph.io.annotations import load_annotations, write_centers
-    from egograph.io.atomic import atomic_write_text
-    from egograph.steps.pipeline import n_instances, regt_estimates
-    from egograph.track.regt import as_center_annotations, audit_text, box_detections
+    from egograph.steps.regt import regt
 
-    cfg = _lifting_config(args)
-    if cfg is None:
-        return 0
-    regt = cfg.regt
+    cfg = pipeline_config(args)
     rec = _open(args, cfg)
-    if rec.annotation_dir is None:
-        raise InputError(rec.seq_dir, "no annotations found (motion_state_annot.txt, 2d_bbox_annot/); pass --annotations DIR")
-    ann = load_annotations(rec.annotation_dir, box_format=cfg.io.box_format)
-    obs, report = lift_recording(rec, box_detections(ann), cfg.lift, progress=not args.quiet,
-                                 n_instances=n_instances(rec))
-    est, jp = regt_estimates(rec, ann, obs, cfg, joint=args.joint_poses, progress=not args.quiet)
-    out = Path(args.out)
-    out.mkdir(parents=True, exist_ok=True)
-    write_centers(out / "3d_center_annot.txt", as_center_annotations(est))
-    from dataclasses import asdict
-
-    atomic_write_text(out / "regt.json", json.dumps({"audit_m": regt.audit_m, "audit_sigma": regt.audit_sigma,
-                                                      "intervals": [asdict(e) for e in est]}, indent=1) + "\n")
-    text = audit_text(est, regt)
-    atomic_write_text(out / "audit.md", text)
+    r = regt(rec, cfg, args.out, joint=args.joint_poses, progress=not args.quiet)
     con = _console()
-    con.print(report.summary())
-    print(text)
-    con.print(f"re-estimated {sum(e.xyz is not None for e in est)} of {len(est)} intervals -> {out}/3d_center_annot.txt, "
-              f"regt.json (covariances), audit.md")
-    if jp is not None:
-        _write_joint_poses(con, rec, jp, cfg, args.poses_out or out / "poses")
+    con.print(r.lift_report.summary())
+    print(r.audit)
+    con.print(f"re-estimated {sum(e.xyz is not None for e in r.estimates)} of {len(r.estimates)} intervals -> "
+              f"{args.out}/3d_center_annot.txt, regt.json (covariances), audit.md")
+    if r.joint is not None:
+        from egograph.steps.joint import write_joint_poses
+
+        poses_out = args.poses_out or Path(args.out) / "poses"
+        write_joint_poses(rec, r.joint, cfg, poses_out)
+        _print_joint(con, r.joint, poses_out)
     return 0
 
 
 def cmd_smooth(args) -> int:
-    from egograph.io.detections import read_results_dir
-    from egograph.steps.pipeline import write_results
-    from egograph.track.intervals import write_intervals_json
-    from egograph.track.smooth import smooth_predictions
+    from egograph.steps.recording import labels
+    from egograph.steps.smooth import smooth
 
-    cfg = _pipeline_config(args)
-    if args.show_config:
-        _show_config(cfg.graph)
-        return 0
+    cfg = pipeline_config(args)
     rec = _open(args, cfg)
-    per_frame = read_results_dir(args.results, rec.timestamps)
-    result = smooth_predictions(rec, per_frame, cfg.graph, causal=args.causal, progress=not args.quiet)
-    result.metadata["smoothed"] = str(args.results)
-    write_results(args.out, rec, result.per_frame)
-    ipath = args.intervals or _sibling(args.out, ".intervals.json")
-    write_intervals_json(ipath, result.intervals, result.metadata)
+    result = smooth(rec, args.results, cfg, args.out, causal=args.causal, overwrite=args.overwrite,
+                    progress=not args.quiet)
     con = _console()
-    _print_intervals(con, result.intervals, rec, result.metadata)
-    con.print(f"smoothed {result.metadata['n_observations']} predictions of {args.results} -> {args.out}, "
-              f"intervals -> {ipath}")
-    if args.eval and rec.annotation_dir is not None:
-        from egograph.steps.pipeline import evaluate
+    print_intervals(con, result.intervals, rec, result.metadata, labels(rec))
+    if args.intervals:
+        from egograph.track.intervals import write_intervals_json
 
-        evaluate(rec, args.out).print(con)
+        write_intervals_json(args.intervals, result.intervals, result.metadata, timestamps=rec.timestamps,
+                             labels=labels(rec), sequence=rec.name)
+    con.print(f"smoothed {result.metadata.get('n_observations', 'the')} predictions of {args.results} -> {args.out}")
+    if args.eval and rec.annotation_dir is not None:
+        from egograph.steps.evaluate import evaluate
+
+        evaluate(rec, result).print(con)
     return 0
 
 
 def cmd_eval(args) -> int:
-    from egograph.steps.pipeline import evaluate
+    from egograph.steps.evaluate import evaluate
 
-    cfg = _pipeline_config(args)
+    cfg = pipeline_config(args)
     rec = _open(args, cfg)
     report = evaluate(rec, args.results)
-    report.print(_console(), per_instance=args.per_instance)
+    con = _console()
+    if args.format in ("table", "yaml"):
+        report.print(con, per_instance=args.per_instance)
+    else:
+        from egograph.eval.report import render_report
+
+        print(render_report(report, args.format))
     if report.frames_without_file:
-        _console().print(f"[yellow]{report.frames_without_file} frames had no results file (counted as no prediction)")
+        con.print(f"[yellow]{report.frames_without_file} frames had no results file (counted as no prediction)")
     if args.json:
         report.write_json(args.json)
     if args.markdown:
@@ -312,11 +289,12 @@ def cmd_eval(args) -> int:
 
 
 def cmd_compare(args) -> int:
-    from egograph.eval.report import comparison_table, plot_pr
-    from egograph.io.atomic import atomic_write_text
-    from egograph.steps.pipeline import evaluate
+    from egograph.eval.report import comparison_table, plot_pr, print_comparison, render_comparison
+    from egograph.io.atomic import atomic_dir
+    from egograph.steps import outputs
+    from egograph.steps.evaluate import evaluate
 
-    cfg = _pipeline_config(args)
+    cfg = pipeline_config(args)
     rec = _open(args, cfg)
     names = args.names.split(",") if args.names else [Path(r).name for r in args.results]
     if len(names) != len(args.results) or len(set(names)) != len(names):
@@ -324,15 +302,21 @@ def cmd_compare(args) -> int:
     reports = {n: evaluate(rec, r) for n, r in zip(names, args.results)}
     baseline = args.baseline if args.baseline in reports else None
     md, csv = comparison_table(reports, baseline=baseline)
-    print(md)
+    if args.format in ("table", "yaml"):
+        print_comparison(reports, baseline, _console())
+    else:
+        print(render_comparison(reports, baseline, args.format))
     if args.out:
-        out = Path(args.out)
-        out.mkdir(parents=True, exist_ok=True)
-        atomic_write_text(out / "comparison.md", md)
-        atomic_write_text(out / "comparison.csv", csv)
-        atomic_write_text(out / "comparison.json", json.dumps({n: r.to_json_dict() for n, r in reports.items()}, indent=1))
-        plot_pr(reports, out / "comparison.png")
-        _console().print(f"wrote {out}/comparison.{{md,csv,json,png}}")
+        record = outputs.run_record("compare", cfg, {"recording": outputs.recording_digest(rec),
+                                                     "results": dict(zip(names, map(str, args.results)))})
+        with atomic_dir(args.out) as tmp:
+            (tmp / "comparison.md").write_text(md)
+            (tmp / "comparison.csv").write_text(csv)
+            (tmp / "comparison.json").write_text(json.dumps({n: r.to_json_dict() for n, r in reports.items()},
+                                                            indent=1))
+            plot_pr(reports, tmp / "comparison.png")
+            outputs.write_run_files(tmp, record, cfg)
+        _console().print(f"wrote {args.out}/comparison.{{md,csv,json,png}}")
     return 0
 
 
@@ -341,28 +325,26 @@ def cmd_demo(args) -> int:
     factor-graph tracker), show the graph's position intervals, evaluate."""
     import tempfile
 
-    from egograph.eval.report import comparison_table
-    from egograph.steps.pipeline import GRAPH_TRACKERS, evaluate, lift, track, track_graph, write_results
+    from egograph.eval.report import print_comparison
+    from egograph.steps.evaluate import evaluate
+    from egograph.steps.lift import lift
+    from egograph.steps.recording import labels, open_recording
+    from egograph.steps.settings import EgographConfig
+    from egograph.steps.synth import synth
+    from egograph.steps.track import track
     from egograph.synth.config import SynthConfig
-    from egograph.synth.generate import generate
-    from egograph.track.intervals import write_intervals_json
 
     con = _console()
     out = Path(args.out) if args.out else Path(tempfile.mkdtemp(prefix="egograph-demo-"))
-    scfg = load_config(SynthConfig, REPO / "configs" / "synth" / "svoe.yaml",
-                       [f"frames={args.frames}", "pv.rgb=false", *args.overrides])
+    scfg = load_config(SynthConfig, SYNTH_CONFIG, [f"frames={args.frames}", "pv.rgb=false", *args.overrides])
     rec_dir = out / "recording"
-    if not (rec_dir / "recording.json").exists() or args.regenerate:
-        con.rule("1. synthetic recording")
-        r = generate(rec_dir, scfg, seed=args.seed)
+    con.rule("1. synthetic recording")
+    r = synth(rec_dir, scfg, seed=args.seed, overwrite=args.regenerate)
+    if r is not None:
         con.print(f"generated {r.frames} frames in {r.seconds:.1f} s ({r.fps_generation:.1f} frames/s)")
     cmd_info(argparse.Namespace(rec=rec_dir, sequence=None, calibration=None, annotations=None, json=None,
-                                config=DEFAULT_CONFIG, overrides=[], show_config=False))
-    from egograph.steps.pipeline import open_recording
-    from egograph.steps.settings import EgographConfig
-
+                                config=DEFAULT_CONFIG, overrides=[]))
     cfg = load_config(EgographConfig, DEFAULT_CONFIG)
-
     rec = open_recording(rec_dir, cfg)
     reports = {}
     graph_runs = {}
@@ -370,29 +352,26 @@ def cmd_demo(args) -> int:
         for mode in ("reference", "robust"):
             cfg.lift.mode = mode
             con.rule(f"2. {det_set.upper()}: lift ({mode}) and track")
-            obs, rep = lift(rec, det_set, cfg)
-            con.print(rep.summary())
+            obs, rep = lift(rec, det_set, cfg, out / "observations" / f"{det_set}_{mode}.npz")
+            if rep is not None:
+                con.print(rep.summary())
             # The paper's pipeline is kf on reference lifting; the graph runs on robust lifting.
             trackers = ("memory", "kf") if mode == "reference" else ("memory", "kf", "graph", "graph-causal")
             for tracker in trackers:
                 res = out / "results" / f"{det_set}_{tracker}_{mode}"
-                if tracker in GRAPH_TRACKERS:
-                    result = track_graph(rec, obs, cfg, causal=tracker == "graph-causal")
-                    write_results(res, rec, result.per_frame)
-                    write_intervals_json(_sibling(res, ".intervals.json"), result.intervals, result.metadata)
+                result = track(rec, tracker, obs, cfg, res)
+                if result.intervals is not None:
                     graph_runs[(det_set, tracker)] = result
-                else:
-                    write_results(res, rec, track(rec, tracker, obs, cfg))
-                reports[f"{det_set} {tracker} ({mode} lift)"] = evaluate(rec, res)
+                reports[f"{det_set} {tracker} ({mode} lift)"] = evaluate(rec, result)
     primary = scfg.detections.primary
     con.rule(f"3. position intervals (graph, {primary.upper()})")
-    _print_intervals(con, graph_runs[(primary, "graph")].intervals, rec, graph_runs[(primary, "graph")].metadata)
+    g = graph_runs[(primary, "graph")]
+    print_intervals(con, g.intervals, rec, g.metadata, labels(rec))
     con.rule("4. IT3DEgo evaluation (all frames)")
     for det_set in ("svoe", "mvpe"):
         sub = {k: v for k, v in reports.items() if k.startswith(det_set)}
-        md, _ = comparison_table(sub, baseline=f"{det_set} kf (reference lift)")
         con.print(f"[bold]{det_set.upper()}[/bold] (ratios against the published pipeline: kf on reference lifting)")
-        print(md)
+        print_comparison({k.split(" ", 1)[1]: v for k, v in sub.items()}, "kf (reference lift)", con)
         con.print("intervals recovered: " + ", ".join(
             f"{k.split(' ', 1)[1]} {v.intervals.n_recovered}/{v.intervals.n_true}" for k, v in sub.items()))
     con.print(f"outputs under {out}")
@@ -401,20 +380,30 @@ def cmd_demo(args) -> int:
 
 # ------------------------------------------------------------------ parser
 
+def _tracker_help() -> str:
+    from egograph.track.registry import DESCRIPTIONS
+
+    return "; ".join(f"{k}: {v}" for k, v in DESCRIPTIONS.items())
+
+
 def build_parser() -> argparse.ArgumentParser:
+    from egograph.track.registry import TRACKERS
+
     p = argparse.ArgumentParser(prog="egograph", description="Offline factor-graph tracking of object instances in "
                                 "egocentric HoloLens 2 recordings (IT3DEgo layout).")
-    sub = p.add_subparsers(dest="command", required=True)
+    p.add_argument("--version", action="version", version=f"egograph {__version__}")
+    sub = p.add_subparsers(dest="command", required=True, metavar="COMMAND")
 
     s = sub.add_parser("synth", help="generate a synthetic recording in the IT3DEgo layout (truth in synth_gt/)")
-    s.add_argument("out", type=Path)
-    s.add_argument("--seed", type=int, default=1)
-    s.add_argument("--frames", type=int)
-    s.add_argument("--quiet", action="store_true")
+    s.add_argument("out", type=Path, help="output folder (replaced as a whole when the recording is complete)")
+    s.add_argument("--seed", type=int, default=1, help="seed of every random choice (default 1)")
+    s.add_argument("--frames", type=int, help="number of PV frames at 30 fps (default from the config)")
+    _add_quiet(s)
+    _add_overwrite(s)
     s.add_argument("--redetect", action="store_true",
                    help="only re-simulate the detection sets of an existing recording OUT with this config's front-ends")
-    _add_config_args(s, REPO / "configs" / "synth" / "svoe.yaml")
-    s.set_defaults(func=cmd_synth)
+    _add_config_args(s, SYNTH_CONFIG)
+    s.set_defaults(func=cmd_synth, config_kind="synth")
 
     s = sub.add_parser("info", help="summarise a recording (frames, instances, intervals, pose error vs synth_gt)")
     _add_rec_args(s)
@@ -426,25 +415,32 @@ def build_parser() -> argparse.ArgumentParser:
     _add_rec_args(s)
     _add_poses_arg(s)
     s.add_argument("--detections", required=True, help="folder of per-frame detection files, or a set name (svoe, mvpe)")
-    s.add_argument("--out", required=True, type=Path, help="observations file (.npz)")
-    s.add_argument("--lift", choices=["reference", "robust"], help="lifting mode (default from config: robust)")
+    s.add_argument("--out", required=True, type=Path, help="observations file (.npz, with its provenance)")
+    _add_lift_arg(s)
     s.add_argument("--lifted-dir", type=Path, help="also write per-frame lifted points (instance x y z score)")
-    s.add_argument("--quiet", action="store_true")
+    _add_quiet(s)
+    _add_overwrite(s)
     _add_config_args(s, DEFAULT_CONFIG)
     s.set_defaults(func=cmd_lift)
 
-    s = sub.add_parser("track", help="track instances; writes per-frame results (instance x y z score)")
+    s = sub.add_parser("track", help="track instances; writes a results folder (per-frame files, intervals.json)")
     _add_rec_args(s)
     _add_poses_arg(s)
-    s.add_argument("--tracker", required=True, help="graph | graph-causal | memory | kf")
-    s.add_argument("--intervals", type=Path, help="graph trackers: intervals JSON (default: RESULTS.intervals.json)")
-    s.add_argument("--detections", default="svoe", help="folder of per-frame detection files, or a set name (svoe, mvpe)")
+    s.add_argument("--tracker", required=True, choices=list(TRACKERS), metavar="{" + ",".join(TRACKERS) + "}",
+                   help=_tracker_help())
+    s.add_argument("--intervals", type=Path, help="interval trackers: also write the intervals JSON here "
+                                                  "(it is always in RESULTS/intervals.json)")
+    s.add_argument("--detections", default="svoe", help="folder of per-frame detection files, or a set name "
+                                                        "(svoe, mvpe; default svoe)")
     s.add_argument("--observations", type=Path, help="use lifted observations (.npz from `egograph lift`) instead")
-    s.add_argument("--out", required=True, type=Path, help="results folder (one file per PV frame)")
-    s.add_argument("--lift", choices=["reference", "robust"])
+    s.add_argument("--out", required=True, type=Path,
+                   help="results folder: <ts>.txt per PV frame (instance x y z score), intervals.json, "
+                        "config.yaml, egograph.json")
+    _add_lift_arg(s)
     s.add_argument("--eval", action="store_true", help="evaluate the results against the annotations")
     _add_joint_args(s, "RESULTS.poses")
-    s.add_argument("--quiet", action="store_true")
+    _add_quiet(s)
+    _add_overwrite(s)
     _add_config_args(s, DEFAULT_CONFIG)
     s.set_defaults(func=cmd_track)
 
@@ -453,48 +449,56 @@ def build_parser() -> argparse.ArgumentParser:
     _add_poses_arg(s)
     s.add_argument("--out", required=True, type=Path,
                    help="folder for 3d_center_annot.txt (re-estimated), regt.json (covariances) and audit.md")
-    s.add_argument("--lift", choices=["reference", "robust"])
+    _add_lift_arg(s)
     _add_joint_args(s, "OUT/poses")
-    s.add_argument("--quiet", action="store_true")
+    _add_quiet(s)
     _add_config_args(s, DEFAULT_CONFIG)
     s.set_defaults(func=cmd_regt)
 
     s = sub.add_parser("smooth", help="turn another tracker's per-frame results into intervals with the graph")
     _add_rec_args(s)
     s.add_argument("results", type=Path, help="results folder in the reference format (instance x y z score)")
-    s.add_argument("--out", required=True, type=Path, help="smoothed results folder")
-    s.add_argument("--intervals", type=Path, help="intervals JSON (default: OUT.intervals.json)")
+    s.add_argument("--out", required=True, type=Path, help="smoothed results folder (with intervals.json)")
+    s.add_argument("--intervals", type=Path, help="also write the intervals JSON here")
     s.add_argument("--causal", action="store_true", help="causal (iSAM2) instead of offline")
-    s.add_argument("--eval", action="store_true")
-    s.add_argument("--quiet", action="store_true")
+    s.add_argument("--eval", action="store_true", help="evaluate the smoothed results against the annotations")
+    _add_quiet(s)
+    _add_overwrite(s)
     _add_config_args(s, DEFAULT_CONFIG)
     s.set_defaults(func=cmd_smooth)
 
     s = sub.add_parser("eval", help="IT3DEgo metrics of a results folder")
     _add_rec_args(s)
-    s.add_argument("results", type=Path)
-    s.add_argument("--json", type=Path)
-    s.add_argument("--markdown", type=Path)
-    s.add_argument("--csv", type=Path)
+    s.add_argument("results", type=Path, help="results folder (one <ts>.txt per PV frame; intervals.json scored "
+                                              "as it is when present)")
+    s.add_argument("--json", type=Path, help="write the metrics as JSON")
+    s.add_argument("--markdown", type=Path, help="write the metrics as a markdown table")
+    s.add_argument("--csv", type=Path, help="write the metrics as CSV")
     s.add_argument("--plot", type=Path, help="PNG of precision/recall against threshold")
-    s.add_argument("--per-instance", action="store_true")
+    s.add_argument("--per-instance", action="store_true", help="also a table per instance")
+    s.add_argument("--format", choices=("table", "md", "csv", "json", "yaml"), default="table",
+                   help="how to print: a table sized to the terminal, or every column as md, csv or json "
+                        "(yaml: with --show-config)")
     _add_config_args(s, DEFAULT_CONFIG)
     s.set_defaults(func=cmd_eval)
 
     s = sub.add_parser("compare", help="several results folders against one ground truth, in the paper's table layout")
     _add_rec_args(s)
-    s.add_argument("results", nargs="+", type=Path)
+    s.add_argument("results", nargs="+", type=Path, help="results folders")
     s.add_argument("--names", help="comma-separated row names (default: folder names)")
     s.add_argument("--baseline", default="kf", help="row to give ratios against (default: kf, when present)")
-    s.add_argument("--out", type=Path)
+    s.add_argument("--out", type=Path, help="folder for comparison.{md,csv,json,png}")
+    s.add_argument("--format", choices=("table", "md", "csv", "json", "yaml"), default="table",
+                   help="how to print the comparison: tables sized to the terminal, or every column as md (the "
+                        "paper's layout), csv or json (yaml: with --show-config)")
     _add_config_args(s, DEFAULT_CONFIG)
     s.set_defaults(func=cmd_compare)
 
     s = sub.add_parser("demo", help="generate a synthetic recording, lift, track (baselines and graph), evaluate")
     s.add_argument("out", nargs="?", help="output folder (default: a new temporary folder)")
-    s.add_argument("--frames", type=int, default=900)
-    s.add_argument("--seed", type=int, default=1)
-    s.add_argument("--regenerate", action="store_true")
+    s.add_argument("--frames", type=int, default=900, help="length of the recording, PV frames (default 900)")
+    s.add_argument("--seed", type=int, default=1, help="seed of the recording (default 1)")
+    s.add_argument("--regenerate", action="store_true", help="generate the recording again even if OUT has it")
     s.add_argument("--set", dest="overrides", action="append", default=[], metavar="KEY=VALUE",
                    help="override a synthetic-recording knob")
     s.set_defaults(func=cmd_demo)
@@ -505,14 +509,36 @@ def build_parser() -> argparse.ArgumentParser:
     return p
 
 
-def main(argv: list[str] | None = None) -> int:
-    from egograph.core.errors import InputError
+def _config_only(argv: list[str]) -> int | None:
+    """``egograph CMD --show-config [--config F] [--set K=V] [--format yaml]``: print the
+    configuration without needing the command's other arguments; None when not asked for."""
+    if "--show-config" not in argv or not argv or argv[0].startswith("-"):
+        return None
+    cmd = argv[0]
+    p = argparse.ArgumentParser(prog=f"egograph {cmd}", add_help=False)
+    p.add_argument("--format", dest="config_format", default="table")
+    _add_config_args(p, SYNTH_CONFIG if cmd == "synth" else DEFAULT_CONFIG)
+    p.add_argument("--frames", type=int)
+    p.add_argument("--lift", choices=["reference", "robust"])
+    args, _ = p.parse_known_args(argv[1:])
+    cfg = synth_config(args) if cmd == "synth" else pipeline_config(args)
+    _show_config(cfg, "yaml" if args.config_format == "yaml" else "table")
+    return 0
 
-    args = build_parser().parse_args(argv)
+
+def main(argv: list[str] | None = None) -> int:
+    argv = list(sys.argv[1:] if argv is None else argv)
     warnings.simplefilter("default")
     try:
+        shown = _config_only(argv)
+        if shown is not None:
+            return shown
+        try:
+            args = build_parser().parse_args(argv)
+        except SystemExit as exc:  # usage errors (argparse printed them), --help, --version
+            return int(exc.code or 0) if not isinstance(exc.code, str) else 2
         return int(args.func(args) or 0)
-    except (InputError, ConfigError) as exc:
+    except EgographError as exc:
         print(f"egograph: error: {exc}", file=sys.stderr)
         return 2
     except KeyboardInterrupt:

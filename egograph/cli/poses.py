@@ -14,8 +14,6 @@ from __future__ import annotations
 import json
 from pathlib import Path
 
-from egograph.core.errors import ConfigError
-
 
 def add_parsers(sub, add_config_args, add_rec_args, default_config: Path) -> None:
     """Add the ``refine`` and ``eval-poses`` sub-commands (the helpers come from ``egograph.cli``)."""
@@ -23,7 +21,8 @@ def add_parsers(sub, add_config_args, add_rec_args, default_config: Path) -> Non
                                       "[+ COLMAP]); writes pv_pose.json, depth_ahat_pose.json, TUM files, a report")
     add_rec_args(s)
     s.add_argument("--out", required=True, type=Path, help="output folder (never the recording itself)")
-    s.add_argument("--quiet", action="store_true")
+    s.add_argument("--quiet", action="store_true", help="no progress bars")
+    s.add_argument("--overwrite", action="store_true", help="refine again even when OUT already holds this exact run")
     add_config_args(s, default_config)
     s.set_defaults(func=cmd_refine)
 
@@ -40,10 +39,9 @@ def add_parsers(sub, add_config_args, add_rec_args, default_config: Path) -> Non
 
 
 def _config(args):
-    from egograph.core.config import load_config
-    from egograph.steps.settings import EgographConfig
+    from egograph.cli.common import pipeline_config
 
-    return load_config(EgographConfig, args.config, args.overrides)
+    return pipeline_config(args)
 
 
 def _open(args, cfg):
@@ -55,43 +53,18 @@ def _open(args, cfg):
                           depth_factor=cfg.io.depth_factor or None)
 
 
-def _show(cfg) -> None:
-    from egograph.cli.common import _show_config
-
-    _show_config(cfg)
-
-
 def cmd_refine(args) -> int:
-    import warnings
-
-    from egograph.core.errors import InputError
-    from egograph.poses.refine import refine_recording, write_refined
+    from egograph.cli.common import _console
+    from egograph.steps.refine import refine
 
     cfg = _config(args)
-    if args.show_config:
-        _show(cfg)
-        return 0
-    cfg.refine.check()
     rec = _open(args, cfg)
-    out = Path(args.out)
-    o, seq = out.resolve(), rec.seq_dir.resolve()
-    if o == seq or o in seq.parents:
-        raise InputError(out, "refusing to overwrite the input recording; choose another --out folder")
-    if cfg.refine.colmap and not any(rec.pv_path(i).is_file() for i in range(0, len(rec), max(1, len(rec) // 10))):
-        raise ConfigError(f"refine.colmap=true needs PV images ({rec.seq_dir / 'pv'}/<ts>.png); none found")
-    with warnings.catch_warnings():
-        warnings.simplefilter("ignore", UserWarning)  # missing/unreadable depth frames are counted, not printed
-        result = refine_recording(rec, cfg.refine, progress=not args.quiet)
-    extra = {}
-    if rec.synth_gt_dir is not None and (rec.synth_gt_dir / "pv_pose.json").is_file():
-        from egograph.io.poses import read_pose_json
-        from egograph.poses.evaluate import evaluate_trajectory
-
-        _, gt, _ = read_pose_json(rec.synth_gt_dir / "pv_pose.json")
-        extra["eval_reported"] = evaluate_trajectory(rec.pv_poses, gt).as_dict()
-        extra["eval_refined"] = evaluate_trajectory(result.pv_poses, gt).as_dict()
-    write_refined(result, out, rec, cfg.refine, extra)
-    _summary(result, extra, out)
+    result, extra = refine(rec, cfg, args.out, overwrite=args.overwrite, progress=not args.quiet)
+    if result is None:
+        _console().print(f"{args.out} already holds this refinement (same recording and refine.* configuration); "
+                         f"--overwrite refines again")
+        return 0
+    _summary(result, extra, Path(args.out))
     return 0
 
 
@@ -154,9 +127,6 @@ def cmd_eval_poses(args) -> int:
     from egograph.poses.evaluate import ate_errors, evaluate_trajectory, match_timestamps, plot_errors
 
     cfg = _config(args)
-    if args.show_config:
-        _show(cfg)
-        return 0
     rec = _open(args, cfg)
     if args.reference is not None:
         ref_ts, ref = load_trajectory(args.reference)

@@ -98,13 +98,14 @@ class LoadedSequence:
 def load_sequence(
     pv_pose_path: str | Path,
     center_annot_path: str | Path,
-    results_dir: str | Path,
+    results_dir: str | Path | None,
     labels_path: str | Path | None = None,
 ) -> LoadedSequence:
-    """Read the pose file, the GT centres and one tracker's per-frame results of a sequence."""
+    """Read the pose file, the GT centres and one tracker's per-frame results of a sequence
+    (``results_dir`` None: no predictions yet, for results held in memory)."""
     ts, centers = load_camera_centers(pv_pose_path)
     gt = load_gt_intervals(center_annot_path)
-    preds = load_predictions(results_dir, ts)
+    preds = load_predictions(results_dir, ts) if results_dir is not None else FramePredictions()
     labels = None
     if labels_path is not None:
         if not Path(labels_path).is_file():

@@ -1,10 +1,20 @@
 """Evaluation reports: several sequences of one tracker, and trackers side by side.
 
-Units everywhere: precision/recall/PCL as fractions 0-1 in JSON and CSV,
-percent with one decimal in Markdown and terminal tables; L2 in metres; angle
-in radians; break-time error in seconds. A ratio whose denominator is zero is
-reported as 0.0 together with its ``n`` (``n_pred``, ``n_gt``, ``l2_n``,
-``angle_n``), and tables print ``(n=0)`` beside it.
+Units: precision/recall/PCL as fractions 0-1 in a report's JSON and CSV, percent in the
+comparison CSV/JSON, percent with one decimal in Markdown and terminal tables; L2 in metres;
+angle in radians; break-time error in seconds.
+
+Undefined values -- precision without predictions (``n_pred == 0``), recall and PCL without GT
+(``n_gt == 0``), L2/angle without a matched pair (``l2_n``/``angle_n == 0``), a NaN, a ratio to
+an undefined or zero baseline -- print as ``n/a`` in Markdown and terminal tables and as an empty
+cell in CSV, never as 0.0 (which would read as a result). A report's JSON keeps the protocol's
+0.0 together with the counts that say it is undefined (``n_pred``, ``n_gt``, ``l2_n``,
+``angle_n``), so it stays exact and additive.
+
+Terminal tables (:meth:`EvalReport.rich_tables`, :func:`comparison_rich_tables`) fit the
+console width -- 80 columns included -- by stacking tables that repeat the name column, never
+by dropping a column; :func:`render_report` and :func:`render_comparison` give every column as
+Markdown, CSV or JSON text.
 """
 
 from __future__ import annotations
@@ -24,6 +34,15 @@ from egograph.eval.protocol import THRESHOLDS, Counts, SequenceResult
 from egograph.io.atomic import atomic_write_bytes, atomic_write_text
 
 DEFAULT_RATIO_COLUMNS = ("P@0.25", "P@1.5", "R@0.25", "R@1.5", "L2 (m)", "angle (rad)")
+
+FORMATS = ("md", "csv", "json")
+"""Text formats of :func:`render_report` and :func:`render_comparison`."""
+
+NA = "n/a"
+"""How tables print an undefined value."""
+
+TERMINAL_WIDTH = 80
+"""Width the terminal tables fit when no console width is known."""
 
 
 def threshold_label(t: float) -> str:
@@ -178,7 +197,11 @@ class EvalReport:
         return rows
 
     def to_csv(self) -> str:
-        """One row per scope (total, sequence, instance); fractions 0-1, metres, radians."""
+        """One row per scope (total, sequence, instance); fractions 0-1, metres, radians.
+
+        An undefined ratio (see the module doc: no predictions, no GT, no matched pair, NaN) is an
+        empty cell; the ``n_gt``/``n_pred``/``l2_n``/``angle_n`` columns say why.
+        """
         labels = [threshold_label(t) for t in self.thresholds]
         header = ["scope", "name", "n_gt", "n_pred"]
         header += [f"P@{x}" for x in labels] + [f"R@{x}" for x in labels]
@@ -188,11 +211,13 @@ class EvalReport:
         w = csv.writer(buf, lineterminator="\n")
         w.writerow(header)
         for scope, name, c in self._rows():
+            p_ok, r_ok = c.n_pred > 0, c.n_gt > 0
             w.writerow(
                 [scope, name, c.n_gt, c.n_pred]
-                + [repr(float(x)) for x in c.precision] + [repr(float(x)) for x in c.recall]
+                + [_csv_number(x, p_ok) for x in c.precision] + [_csv_number(x, r_ok) for x in c.recall]
                 + [int(x) for arr in (c.tp, c.fp, c.fn) for x in arr]
-                + [repr(c.l2_m), c.l2_n, repr(c.angle_rad), c.angle_n, repr(c.pcl)]
+                + [_csv_number(c.l2_m, c.l2_n > 0), c.l2_n, _csv_number(c.angle_rad, c.angle_n > 0), c.angle_n,
+                   _csv_number(c.pcl, r_ok)]
             )
         return buf.getvalue()
 
@@ -242,37 +267,40 @@ class EvalReport:
     def write_markdown(self, path: str | Path, title: str = "IT3DEgo evaluation") -> None:
         atomic_write_text(path, self.to_markdown(title))
 
-    def rich_table(self, per_instance: bool = False, title: str = "IT3DEgo evaluation"):
-        """A compact ``rich.table.Table``: the total, then sequences (and instances if asked).
-
-        Precision, recall and PCL in percent; ``*`` marks a ratio with a zero denominator (n=0).
+    def rich_tables(self, per_instance: bool = False, title: str = "IT3DEgo evaluation",
+                    width: int = TERMINAL_WIDTH) -> list:
+        """``rich.table.Table`` objects that together hold every column and each fit ``width``
+        terminal columns: the total, then sequences (and instances if asked), the name column
+        repeated in each; one table when the width allows. P, R, PCL in percent; L2 in metres;
+        angle in radians; ``n/a`` marks an undefined value.
         """
-        from rich import box
-        from rich.table import Table
-
         labels = [threshold_label(t) for t in self.thresholds]
-        cols = [f"P@{x}" for x in labels] + [f"R@{x}" for x in labels] + ["L2 (m)", "angle (rad)", "PCL@0.3"]
-        table = Table(title=title, box=box.SIMPLE_HEAD, padding=(0, 1), collapse_padding=True, pad_edge=False,
-                      caption="P, R, PCL in %; * = n=0")
-        table.add_column("name", no_wrap=True)
-        for h in cols + ["n_gt", "n_pred"]:  # two-line headers keep the columns narrow
-            header = h.replace("@", "@\n").replace(" (", "\n(")
-            table.add_column(header, justify="right", no_wrap=True, min_width=5)
-        scope = None
+        groups = [[f"P@{x}" for x in labels], [f"R@{x}" for x in labels], ["L2 (m)", "angle (rad)", "PCL@0.3"],
+                  ["n_gt", "n_pred"]]
+        names, cells, sections, scope = [], [], [], None
         for kind, name, c in self._rows(per_instance):
-            if scope is not None and kind != scope:
-                table.add_section()
+            sections.append(scope is not None and kind != scope)
             scope = kind
-            cells = format_metric_cells(c)
-            table.add_row(name, *(cells[h].replace(" (n=0)", "*") for h in cols), str(c.n_gt), str(c.n_pred))
-        return table
+            m = format_metric_cells(c)
+            m["n_gt"], m["n_pred"] = str(c.n_gt), str(c.n_pred)
+            names.append(name)
+            cells.append(m)
+        return fit_tables(title, "name", names, groups, cells, width, sections=sections,
+                          caption="P, R, PCL in %; n/a = undefined (no predictions, no GT)")
+
+    def rich_table(self, per_instance: bool = False, title: str = "IT3DEgo evaluation", width: int = TERMINAL_WIDTH):
+        """:meth:`rich_tables` as one renderable (``rich.console.Group``)."""
+        from rich.console import Group
+
+        return Group(*self.rich_tables(per_instance, title, width))
 
     def print(self, console=None, per_instance: bool = False) -> None:
         """Print the terminal table (and the interval line) with rich."""
         from rich.console import Console
 
         console = console or Console()
-        console.print(self.rich_table(per_instance))
+        for table in self.rich_tables(per_instance, width=console.width):
+            console.print(table)
         iv = self.intervals
         if iv is not None:
             med = iv.median_break_error_s
@@ -286,30 +314,44 @@ class EvalReport:
 # --------------------------------------------------------------------------- formatting
 
 
-def _pct(x: float, n: int) -> str:
-    return f"{100 * x:.1f}" + ("" if n else " (n=0)")
+def _defined(x: float, ok: bool) -> bool:
+    return bool(ok) and math.isfinite(float(x))
+
+
+def _csv_number(x: float, ok: bool) -> str:
+    """Full-precision CSV cell; empty when undefined."""
+    return repr(float(x)) if _defined(x, ok) else ""
+
+
+def _pct(x: float, ok: bool) -> str:
+    return f"{100 * x:.1f}" if _defined(x, ok) else NA
+
+
+def _fixed2(x: float, ok: bool) -> str:
+    return f"{x:.2f}" if _defined(x, ok) else NA
 
 
 def format_metric_cells(c: Counts) -> dict[str, str]:
-    """Display strings of one Counts: ``P@τ``/``R@τ`` and PCL in percent, L2 and angle to 2 decimals."""
+    """Display strings of one Counts: ``P@τ``/``R@τ`` and PCL in percent (one decimal), L2 and
+    angle to 2 decimals; ``n/a`` where undefined (no predictions, no GT, no matched pair, NaN)."""
     cells = {}
     for t, p, r in zip(c.thresholds, c.precision, c.recall):
-        cells[f"P@{threshold_label(t)}"] = _pct(p, c.n_pred)
-        cells[f"R@{threshold_label(t)}"] = _pct(r, c.n_gt)
-    cells["L2 (m)"] = f"{c.l2_m:.2f}" + ("" if c.l2_n else " (n=0)")
-    cells["angle (rad)"] = f"{c.angle_rad:.2f}" + ("" if c.angle_n else " (n=0)")
-    cells["PCL@0.3"] = _pct(c.pcl, c.n_gt)
+        cells[f"P@{threshold_label(t)}"] = _pct(p, c.n_pred > 0)
+        cells[f"R@{threshold_label(t)}"] = _pct(r, c.n_gt > 0)
+    cells["L2 (m)"] = _fixed2(c.l2_m, c.l2_n > 0)
+    cells["angle (rad)"] = _fixed2(c.angle_rad, c.angle_n > 0)
+    cells["PCL@0.3"] = _pct(c.pcl, c.n_gt > 0)
     return cells
 
 
-def _metric_values(c: Counts) -> dict[str, float]:
-    """Numeric values of the comparison columns (percent for P/R, metres, radians)."""
-    vals = {}
+def _metric_values(c: Counts) -> dict[str, float | None]:
+    """Numeric values of the comparison columns (percent for P/R, metres, radians); None where undefined."""
+    vals: dict[str, float | None] = {}
     for t, p, r in zip(c.thresholds, c.precision, c.recall):
-        vals[f"P@{threshold_label(t)}"] = 100 * float(p)
-        vals[f"R@{threshold_label(t)}"] = 100 * float(r)
-    vals["L2 (m)"] = c.l2_m
-    vals["angle (rad)"] = c.angle_rad
+        vals[f"P@{threshold_label(t)}"] = 100 * float(p) if _defined(p, c.n_pred > 0) else None
+        vals[f"R@{threshold_label(t)}"] = 100 * float(r) if _defined(r, c.n_gt > 0) else None
+    vals["L2 (m)"] = float(c.l2_m) if _defined(c.l2_m, c.l2_n > 0) else None
+    vals["angle (rad)"] = float(c.angle_rad) if _defined(c.angle_rad, c.angle_n > 0) else None
     return vals
 
 
@@ -325,19 +367,21 @@ def markdown_table(header: Sequence[str], rows: Sequence[Sequence[str]], n_left:
     return lines
 
 
-def comparison_table(
-    reports: Mapping[str, EvalReport],
-    baseline: str | None = None,
-    ratio_columns: Sequence[str] = DEFAULT_RATIO_COLUMNS,
-) -> tuple[str, str]:
-    """Trackers side by side, in the layout of the paper's tables -> (markdown, csv).
+@dataclass
+class _Comparison:
+    """The cells of a comparison: ``header`` (tracker, metrics, ratios), per tracker the display
+    strings and the numbers (None where undefined)."""
 
-    Rows are trackers; columns ``P@0.25 … P@1.5``, ``R@0.25 … R@1.5`` (percent,
-    one decimal), ``L2 (m)``, ``angle (rad)``. With ``baseline`` (a key of
-    ``reports``), one extra column per name in ``ratio_columns`` holds
-    ``value / baseline value`` (two decimals; ``n/a`` when the baseline value is 0).
-    The CSV holds the same cells, with full-precision numbers.
-    """
+    header: list[str]
+    metric_cols: list[str]
+    ratio_cols: list[str]
+    baseline: str | None
+    text: dict[str, list[str]]
+    numbers: dict[str, list[float | None]]
+
+
+def _comparison(reports: Mapping[str, EvalReport], baseline: str | None,
+                ratio_columns: Sequence[str]) -> _Comparison:
     if not reports:
         raise ValueError("no reports to compare")
     if baseline is not None and baseline not in reports:
@@ -354,30 +398,200 @@ def comparison_table(
         raise ValueError(f"unknown ratio column(s) {unknown}; choose from {metric_cols}")
     header = ["tracker"] + metric_cols + [f"{c} / {baseline}" for c in ratios]
     base_vals = _metric_values(reports[baseline].total) if baseline is not None else {}
-
-    md_rows, csv_rows = [], []
+    text, numbers = {}, {}
     for name, rep in reports.items():
         total = rep.total
         cells, vals = format_metric_cells(total), _metric_values(total)
-        md = [name] + [cells[c] for c in metric_cols]
-        cs: list = [name] + [repr(vals[c]) for c in metric_cols]
+        row_text = [cells[c] for c in metric_cols]
+        row_nums = [vals[c] for c in metric_cols]
         for c in ratios:
-            b = base_vals[c]
-            if b == 0 or not math.isfinite(b):
-                md.append("n/a")
-                cs.append("")
+            b, v = base_vals[c], vals[c]
+            if b is None or v is None or b == 0:
+                row_text.append(NA)
+                row_nums.append(None)
             else:
-                md.append(f"{vals[c] / b:.2f}")
-                cs.append(repr(vals[c] / b))
-        md_rows.append(md)
-        csv_rows.append(cs)
+                row_text.append(f"{v / b:.2f}")
+                row_nums.append(v / b)
+        text[name], numbers[name] = row_text, row_nums
+    return _Comparison(header, metric_cols, ratios, baseline, text, numbers)
 
-    md_text = "\n".join(markdown_table(header, md_rows)) + "\n"
+
+def comparison_table(
+    reports: Mapping[str, EvalReport],
+    baseline: str | None = None,
+    ratio_columns: Sequence[str] = DEFAULT_RATIO_COLUMNS,
+) -> tuple[str, str]:
+    """Trackers side by side, in the layout of the paper's tables -> (markdown, csv).
+
+    Rows are trackers; columns ``P@0.25 … P@1.5``, ``R@0.25 … R@1.5`` (percent,
+    one decimal), ``L2 (m)``, ``angle (rad)``. With ``baseline`` (a key of
+    ``reports``), one extra column per name in ``ratio_columns`` holds
+    ``value / baseline value`` (two decimals). Undefined values (no predictions, no GT,
+    no matched pair, NaN; a ratio to an undefined or zero baseline) are ``n/a``.
+    The CSV holds the same cells, with full-precision numbers, and an empty cell where
+    the Markdown says ``n/a``.
+    """
+    cmp = _comparison(reports, baseline, ratio_columns)
+    md_rows = [[name] + cells for name, cells in cmp.text.items()]
+    md_text = "\n".join(markdown_table(cmp.header, md_rows)) + "\n"
     buf = io.StringIO()
     w = csv.writer(buf, lineterminator="\n")
-    w.writerow(header)
-    w.writerows(csv_rows)
+    w.writerow(cmp.header)
+    for name, nums in cmp.numbers.items():
+        w.writerow([name] + ["" if v is None else repr(v) for v in nums])
     return md_text, buf.getvalue()
+
+
+def comparison_json(
+    reports: Mapping[str, EvalReport],
+    baseline: str | None = None,
+    ratio_columns: Sequence[str] = DEFAULT_RATIO_COLUMNS,
+) -> dict:
+    """The comparison's every column as JSON-ready numbers: ``{"baseline", "columns",
+    "trackers": {name: {column: value}}}``, with the CSV's units (P/R in percent, L2 in metres,
+    angle in radians, ratios unitless) and null where undefined."""
+    cmp = _comparison(reports, baseline, ratio_columns)
+    return {
+        "baseline": baseline,
+        "columns": cmp.header[1:],
+        "trackers": {name: dict(zip(cmp.header[1:], nums)) for name, nums in cmp.numbers.items()},
+    }
+
+
+def comparison_rich_tables(
+    reports: Mapping[str, EvalReport],
+    baseline: str | None = None,
+    ratio_columns: Sequence[str] = DEFAULT_RATIO_COLUMNS,
+    width: int = TERMINAL_WIDTH,
+    title: str = "trackers compared",
+) -> list:
+    """:func:`comparison_table` as ``rich`` tables that each fit ``width`` terminal columns
+    (stacked, the tracker column repeated; every column kept). Ratio columns are headed
+    ``P@0.25 / base`` with the baseline named in the caption."""
+    cmp = _comparison(reports, baseline, ratio_columns)
+    ratio_heads = [f"{c} / base" for c in cmp.ratio_cols]
+    p_cols = [c for c in cmp.metric_cols if c.startswith("P@")]
+    r_cols = [c for c in cmp.metric_cols if c.startswith("R@")]
+    groups = [p_cols, r_cols, ["L2 (m)", "angle (rad)"]] + ([ratio_heads] if ratio_heads else [])
+    cells = [dict(zip(cmp.metric_cols + ratio_heads, row)) for row in cmp.text.values()]
+    caption = "P, R in %; n/a = undefined"
+    if baseline is not None:
+        caption += f"; base = {baseline}"
+    return fit_tables(title, "tracker", list(cmp.text), groups, cells, width, caption=caption)
+
+
+def print_comparison(reports: Mapping[str, EvalReport], baseline: str | None = None, console=None,
+                     ratio_columns: Sequence[str] = DEFAULT_RATIO_COLUMNS) -> None:
+    """Print :func:`comparison_rich_tables` at the console's width."""
+    from rich.console import Console
+
+    console = console or Console()
+    for table in comparison_rich_tables(reports, baseline, ratio_columns, width=console.width):
+        console.print(table)
+
+
+# --------------------------------------------------------------------------- text output
+
+
+def render_report(report: EvalReport, fmt: str) -> str:
+    """One tracker's report as text with every column: ``md`` (:meth:`EvalReport.to_markdown`),
+    ``csv`` (:meth:`EvalReport.to_csv`) or ``json`` (:meth:`EvalReport.to_json_dict`, as
+    :meth:`EvalReport.write_json` writes it)."""
+    if fmt == "md":
+        return report.to_markdown()
+    if fmt == "csv":
+        return report.to_csv()
+    if fmt == "json":
+        return json.dumps(report.to_json_dict(), indent=2) + "\n"
+    raise ValueError(f"format {fmt!r}: expected one of {', '.join(FORMATS)}")
+
+
+def render_comparison(reports: Mapping[str, EvalReport], baseline: str | None = None, fmt: str = "md",
+                      ratio_columns: Sequence[str] = DEFAULT_RATIO_COLUMNS) -> str:
+    """Trackers side by side as text with every column: ``md`` and ``csv`` as
+    :func:`comparison_table` returns them, ``json`` as :func:`comparison_json`."""
+    if fmt in ("md", "csv"):
+        md, text = comparison_table(reports, baseline, ratio_columns)
+        return md if fmt == "md" else text
+    if fmt == "json":
+        return json.dumps(comparison_json(reports, baseline, ratio_columns), indent=2) + "\n"
+    raise ValueError(f"format {fmt!r}: expected one of {', '.join(FORMATS)}")
+
+
+# --------------------------------------------------------------------------- terminal tables
+
+NAME_MIN_WIDTH = 12
+"""Narrowest the name column is folded to before metric columns move to another table."""
+
+
+def _header(h: str) -> str:
+    """Two-line headers keep the metric columns narrow: ``P@\\n0.25``, ``L2\\n(m)``, ``P@0.25\\n/ base``."""
+    if " / " in h:
+        return h.replace(" / ", "\n/ ")
+    return h.replace("@", "@\n").replace(" (", "\n(")
+
+
+def _new_table(title: str | None, name_header: str, caption: str | None):
+    from rich import box
+    from rich.table import Table
+
+    # no padding: the box's blank column separators leave one space between columns (80 columns
+    # hold the name and the ten P/R columns)
+    table = Table(title=title, box=box.SIMPLE_HEAD, padding=(0, 0), show_edge=False, caption=caption)
+    table.add_column(name_header, overflow="fold", min_width=min(NAME_MIN_WIDTH, len(name_header)))
+    return table
+
+
+def _fill(table, columns: Sequence[str], names: Sequence[str], cells: Sequence[Mapping[str, str]],
+          sections: Sequence[bool]) -> None:
+    for h in columns:
+        table.add_column(_header(h), justify="right", no_wrap=True, min_width=5)
+    for name, row, new_section in zip(names, cells, sections):
+        if new_section:
+            table.add_section()
+        table.add_row(name, *(row[h] for h in columns))
+
+
+def _width(table) -> int:
+    from rich.console import Console
+
+    return Console(width=100_000).measure(table).maximum
+
+
+def fit_tables(title: str | None, name_header: str, names: Sequence[str], groups: Sequence[Sequence[str]],
+               cells: Sequence[Mapping[str, str]], width: int, sections: Sequence[bool] | None = None,
+               caption: str | None = None) -> list:
+    """Rich tables holding every column of ``groups`` (lists of column names, kept together
+    where they fit) for the rows ``names``/``cells``, each at most ``width`` terminal columns.
+
+    Groups are packed in order into a table while it fits with the name column at its natural
+    width or, if the names are long, folded to ``NAME_MIN_WIDTH``; a group that fits no table
+    alone is split column by column. The title goes on the first table, the caption on the widest.
+    """
+    sections = list(sections) if sections is not None else [False] * len(names)
+    longest = max([len(n) for n in names] + [len(name_header)])
+    name_room = min(longest, max(NAME_MIN_WIDTH, len(name_header)))
+
+    def needed(columns: Sequence[str]) -> int:
+        probe = _new_table(None, name_header, None)
+        _fill(probe, columns, [""] * len(cells), cells, [False] * len(cells))
+        return _width(probe) - len(name_header) + max(name_room, len(name_header))
+
+    pieces: list[list[str]] = []
+    for group in groups:
+        for part in ([list(group)] if needed(group) <= width else [[c] for c in group]):
+            if pieces and needed(pieces[-1] + part) <= width:
+                pieces[-1] += part
+            else:
+                pieces.append(list(part))
+    widths = [needed(columns) for columns in pieces]
+    with_caption = max(range(len(pieces)), key=lambda k: (widths[k], k))  # captions wrap at their table's width
+    tables = []
+    for k, columns in enumerate(pieces):
+        table = _new_table(title if k == 0 else None, name_header, caption if k == with_caption else None)
+        _fill(table, columns, names, cells, sections)
+        tables.append(table)
+    return tables
 
 
 # --------------------------------------------------------------------------- plot

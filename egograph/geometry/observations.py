@@ -8,7 +8,8 @@ same ray (NaN where beyond the sensor's reach); ``chosen`` is the index of the c
 
 from __future__ import annotations
 
-from dataclasses import dataclass, fields
+import json
+from dataclasses import dataclass, field, fields
 from pathlib import Path
 
 import numpy as np
@@ -30,6 +31,9 @@ class Observations:
     candidates: np.ndarray   # (M, K, 3) float64 alias alternatives in world (NaN-padded)
     chosen: np.ndarray       # (M,) int8 index into candidates of ``world`` (-1 when not lifted)
     n_pixels: np.ndarray     # (M,) int32 depth pixels that supported the estimate
+    provenance: dict = field(default_factory=dict, compare=False)
+    """Where the rows came from: recording, detections, lift configuration and pose source (see
+    :func:`egograph.steps.lift.provenance`); saved with the arrays, so a cache cannot mix poses."""
 
     def __len__(self) -> int:
         return len(self.timestamps)
@@ -40,7 +44,7 @@ class Observations:
         return np.isfinite(self.world).all(axis=1)
 
     def select(self, mask: np.ndarray) -> "Observations":
-        return Observations(**{f.name: getattr(self, f.name)[mask] for f in fields(self)})
+        return Observations(**{name: getattr(self, name)[mask] for name in _ARRAYS}, provenance=self.provenance)
 
     @classmethod
     def empty(cls, k: int = 1) -> "Observations":
@@ -55,32 +59,49 @@ class Observations:
             return cls.empty()
         k = max(p.candidates.shape[1] for p in parts)
         out = {}
-        for f in fields(cls):
+        for name in _ARRAYS:
             arrs = []
             for p in parts:
-                a = getattr(p, f.name)
-                if f.name == "candidates" and a.shape[1] < k:
+                a = getattr(p, name)
+                if name == "candidates" and a.shape[1] < k:
                     a = np.concatenate([a, np.full((len(a), k - a.shape[1], 3), np.nan)], axis=1)
                 arrs.append(a)
-            out[f.name] = np.concatenate(arrs)
-        return cls(**out)
+            out[name] = np.concatenate(arrs)
+        return cls(**out, provenance=parts[0].provenance)
 
     def save(self, path: str | Path) -> None:
         """Write as a compressed ``.npz`` (atomically)."""
         with atomic_path(path) as tmp:
             with open(tmp, "wb") as fh:
-                np.savez_compressed(fh, **{f.name: getattr(self, f.name) for f in fields(self)})
+                arrays = {name: getattr(self, name) for name in _ARRAYS}
+                if self.provenance:
+                    arrays["provenance"] = np.array(json.dumps(self.provenance, sort_keys=True))
+                np.savez_compressed(fh, **arrays)
 
     @classmethod
     def load(cls, path: str | Path) -> "Observations":
         path = Path(path)
         try:
             with np.load(path) as data:
-                missing = [f.name for f in fields(cls) if f.name not in data]
+                missing = [name for name in _ARRAYS if name not in data]
                 if missing:
                     raise InputError(path, f"not an observations file: missing {', '.join(missing)}")
-                return cls(**{f.name: data[f.name] for f in fields(cls)})
+                prov = json.loads(str(data["provenance"])) if "provenance" in data else {}
+                return cls(**{name: data[name] for name in _ARRAYS}, provenance=prov)
         except FileNotFoundError:
             raise InputError(path, "observations file not found") from None
         except (ValueError, OSError) as exc:
             raise InputError(path, f"unreadable observations file ({exc})") from None
+
+    @staticmethod
+    def read_provenance(path: str | Path) -> dict | None:
+        """The provenance saved in an observations file, without loading its arrays; None when the
+        file is missing, unreadable or carries none."""
+        try:
+            with np.load(Path(path)) as data:
+                return json.loads(str(data["provenance"])) if "provenance" in data else None
+        except (OSError, ValueError, KeyError):
+            return None
+
+
+_ARRAYS = [f.name for f in fields(Observations) if f.name != "provenance"]

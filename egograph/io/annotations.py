@@ -231,7 +231,7 @@ def read_centers(path: str | Path, num_instances: int | None = None) -> list[Cen
     return out
 
 
-def _centers_text(centers: Iterable[CenterAnnotation]) -> str:
+def centers_text(centers: Iterable[CenterAnnotation]) -> str:
     rows = sorted(centers, key=lambda c: (c.instance, c.t_start))
     return _lines_text(
         [str(as_int(c.t_start, "t_start")), str(as_int(c.t_end, "t_end")), str(as_int(c.instance, "instance"))]
@@ -243,7 +243,7 @@ def _centers_text(centers: Iterable[CenterAnnotation]) -> str:
 
 def write_centers(path: str | Path, centers: Iterable[CenterAnnotation]) -> None:
     """Write ``3d_center_annot.txt`` sorted by (instance, t_start)."""
-    atomic_write_text(path, _centers_text(centers))
+    atomic_write_text(path, centers_text(centers))
 
 
 # --------------------------------------------------------------------------- motion_state_annot.txt
@@ -446,7 +446,7 @@ def save_annotations(path: str | Path, ann: Annotations, box_format: str = "xyxy
         raise ValueError(f"instance id {bad[0]} out of range for {n} labels")
     texts = {
         LABELS_FILE: _labels_text(ann.labels),
-        CENTERS_FILE: _centers_text(ann.centers),
+        CENTERS_FILE: centers_text(ann.centers),
         MOTION_FILE: _motion_text(ann.motion),
         SVOE_FILE: _svoe_text(ann.svoe, box_format),
     }

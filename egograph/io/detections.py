@@ -33,6 +33,10 @@ from egograph.io.textio import int_stem, iter_rows, listed_files, make_record, p
 
 T = TypeVar("T")
 
+METADATA_FILES = frozenset({"intervals.json", "config.yaml", "egograph.json"})
+"""Files a results folder may hold beside its per-frame ``<ts>.txt`` (the tracker's intervals, the
+resolved configuration and the run record, see :mod:`egograph.steps.outputs`); readers skip them."""
+
 
 # --------------------------------------------------------------------------- per-frame folders
 
@@ -48,7 +52,7 @@ def _read_frame_dir(
     other files are not read; without, every file must be named ``<integer>.txt``.
     """
     path = Path(path)
-    files = listed_files(path, "per-frame")
+    files = [f for f in listed_files(path, "per-frame") if f.name not in METADATA_FILES]
     if timestamps is not None:
         names = {f.name for f in files}
         out: dict[int, list[T]] = {}
@@ -157,14 +161,15 @@ def read_results_dir(path: str | Path, timestamps: Iterable[int] | None = None) 
 
 
 def write_results_dir(
-    path: str | Path, per_frame: Mapping[int, Iterable[Prediction]], timestamps: Sequence[int]
+    path: str | Path, per_frame: Mapping[int, Iterable[Prediction]], timestamps: Sequence[int],
+    extra_files: Mapping[str, str] | None = None,
 ) -> None:
     """Write a result folder with one ``<ts>.txt`` for EVERY PV frame timestamp.
 
     Frames without predictions get an empty file, because the reference
     evaluator opens every frame's file. Predictions for a timestamp that is not
-    a PV frame are refused rather than silently dropped. The folder is replaced
-    atomically.
+    a PV frame are refused rather than silently dropped. ``extra_files`` (name -> text, names from
+    :data:`METADATA_FILES`) land in the same folder, so the whole run is one rename.
     """
     stamps = {as_int(ts, "timestamp") for ts in timestamps}
     stray = sorted(as_int(ts, "timestamp") for ts in per_frame if as_int(ts, "timestamp") not in stamps)
@@ -172,4 +177,8 @@ def write_results_dir(
         raise ValueError(f"predictions for {len(stray)} timestamps that are not PV frames, e.g. {stray[0]}")
     by_ts = {as_int(ts, "timestamp"): preds for ts, preds in per_frame.items()}
     files = {f"{ts}.txt": _results_text(by_ts.get(ts, ())) for ts in sorted(stamps)}
+    for name, text in (extra_files or {}).items():
+        if name not in METADATA_FILES:
+            raise ValueError(f"{name}: not a results metadata file ({', '.join(sorted(METADATA_FILES))})")
+        files[name] = text
     write_text_dir(path, files)

@@ -34,6 +34,21 @@ from egograph.io.calibration import (
 from egograph.io.poses import read_pose_json
 
 
+def mesh_raycasting_scene(mesh):
+    """An Open3D ``RaycastingScene`` of a legacy triangle mesh (world frame, metres): ray casts
+    (``t_hit`` in metres along unit rays) and closest points; None without a mesh or triangles.
+
+    The one builder of the scene mesh's ray-casting scene; :meth:`Recording.mesh_scene` caches it.
+    """
+    if mesh is None or len(mesh.triangles) == 0:
+        return None
+    import open3d as o3d
+
+    scene = o3d.t.geometry.RaycastingScene()
+    scene.add_triangles(o3d.t.geometry.TriangleMesh.from_legacy(mesh))
+    return scene
+
+
 def is_sequence_dir(path: Path) -> bool:
     return (path / "pv_pose.json").is_file()
 
@@ -110,6 +125,9 @@ class Recording:
     annotation_dir: Path | None
     depth_factor: float = 4.0
     _index: dict = field(default_factory=dict, repr=False)
+    # Built on first use, keyed by sequence folder. ``dataclasses.replace`` copies (other poses, same
+    # folder and mesh) share the dict, so lifting and tracking on them build the scene once.
+    _mesh_scenes: dict = field(default_factory=dict, repr=False, compare=False)
 
     # ------------------------------------------------------------ opening
     @classmethod
@@ -235,6 +253,15 @@ class Recording:
                 raise InputError(p, "mesh has no triangles")
             out += m
         return out
+
+    def mesh_scene(self):
+        """The ray-casting scene of :meth:`mesh` (:func:`mesh_raycasting_scene`), or None without a
+        mesh; built on the first call (importing Open3D then), the same object afterwards. A mesh
+        that cannot be read raises on every call (nothing is cached)."""
+        key = self.seq_dir
+        if key not in self._mesh_scenes:
+            self._mesh_scenes[key] = mesh_raycasting_scene(self.mesh())
+        return self._mesh_scenes[key]
 
     # ------------------------------------------------------------ companions
     def detections_dir(self, name: str) -> Path:

@@ -27,6 +27,7 @@ from pathlib import Path
 
 import numpy as np
 
+from egograph.core.resources import require
 from egograph.poses.config import RefineConfig
 from egograph.poses.constraints import Constraints, invert_columns, sigmas
 
@@ -63,7 +64,7 @@ def colmap_constraints(rec, cfg: RefineConfig, pv_estimate: np.ndarray, progress
 
     ``pv_estimate``: (N, 4, 4) column PV camera -> world, the current poses (triangulation and priors).
     """
-    import pycolmap
+    pycolmap = require("pycolmap", "colmap", "refine.colmap=true")
 
     stats: dict = {}
     level = pycolmap.logging.minloglevel
@@ -76,7 +77,7 @@ def colmap_constraints(rec, cfg: RefineConfig, pv_estimate: np.ndarray, progress
 
 def _colmap_constraints(rec, cfg, pv_estimate, progress, stats):
     import cv2
-    import pycolmap
+    pycolmap = require("pycolmap", "colmap", "refine.colmap=true")
     from tqdm import tqdm
 
     frames = keyframes(rec, cfg, pv_estimate)
@@ -167,7 +168,7 @@ def _colmap_constraints(rec, cfg, pv_estimate, progress, stats):
 
 def _known_pose_reconstruction(db_path: Path, frames, names, pv_estimate):
     """A reconstruction with the database's camera and images at the current poses (no points)."""
-    import pycolmap
+    pycolmap = require("pycolmap", "colmap", "refine.colmap=true")
 
     db = pycolmap.Database.open(str(db_path)) if hasattr(pycolmap.Database, "open") else pycolmap.Database(str(db_path))
     try:
@@ -189,7 +190,7 @@ def _known_pose_reconstruction(db_path: Path, frames, names, pv_estimate):
 
 def _prior_bundle_adjustment(recon, frames, names, pv_estimate, cfg: RefineConfig) -> None:
     """Bundle adjustment (poses and points) with a position prior on every keyframe (metric frame kept)."""
-    import pycolmap
+    pycolmap = require("pycolmap", "colmap", "refine.colmap=true")
 
     config = pycolmap.BundleAdjustmentConfig()
     priors = []

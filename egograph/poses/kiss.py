@@ -14,6 +14,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from egograph.core.resources import require
 from egograph.core.units import TICKS_PER_SECOND
 from egograph.poses.config import RefineConfig
 from egograph.poses.constraints import Constraints, ahat_offsets, invert_columns, pv_columns, sigmas
@@ -32,6 +33,7 @@ class KissStats:
 
 
 def make_kiss(cfg: RefineConfig):
+    require("kiss_icp", "icp", "refine.icp=true")
     from kiss_icp.config import KISSConfig
     from kiss_icp.config.config import AdaptiveThresholdConfig, DataConfig, MappingConfig, RegistrationConfig
     from kiss_icp.kiss_icp import KissICP

@@ -19,6 +19,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from egograph.io.recording import mesh_raycasting_scene
 from egograph.poses.config import RefineConfig
 from egograph.poses.constraints import Constraints, ahat_offsets, invert_columns, sigmas
 from egograph.poses.points import AhatPointSource
@@ -40,15 +41,6 @@ class IcpResult:
     fitness: float             # share of source points within the finest distance of the mesh
     rmse: float                # point-to-plane RMS of those inliers, metres
     hessian: np.ndarray        # (6, 6) Σ JᵀJ / N over inliers, AHAT body frame, [rot, trans] order
-
-
-def mesh_scene(mesh):
-    """Open3D ``RaycastingScene`` of the mesh: exact closest points and triangle normals for ICP."""
-    import open3d as o3d
-
-    scene = o3d.t.geometry.RaycastingScene()
-    scene.add_triangles(o3d.t.geometry.TriangleMesh.from_legacy(mesh))
-    return scene
 
 
 def within(delta: np.ndarray, max_trans: float, max_rot_deg: float) -> bool:
@@ -137,7 +129,9 @@ def mesh_constraints(rec, cfg: RefineConfig, pv_estimate: np.ndarray, points: Ah
     stats = MeshIcpStats()
     if mesh is None:
         return Constraints.empty("mesh", "absolute", cfg.mesh_kernel, note="no mesh"), stats
-    scene = mesh_scene(mesh)
+    scene = mesh_raycasting_scene(mesh)  # exact closest points and triangle normals for ICP
+    if scene is None:
+        return Constraints.empty("mesh", "absolute", cfg.mesh_kernel, note="mesh has no triangles"), stats
     offsets = ahat_offsets(rec)
     frames = [i for i in range(0, len(rec), cfg.mesh_stride) if np.isfinite(pv_estimate[i]).all()]
     out_i, out_T, out_info = [], [], []

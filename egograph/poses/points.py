@@ -20,7 +20,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from egograph.geometry.hl2ss import ahat_raw_to_range, invert_rigid
+from egograph.geometry.hl2ss import ahat_raw_to_range, ahat_unit_rays, invert_rigid
+from egograph.io.recording import mesh_raycasting_scene
 from egograph.poses.config import RefineConfig
 
 
@@ -36,23 +37,16 @@ class AhatPointSource:
 
     @classmethod
     def create(cls, rec, cfg: RefineConfig, mesh=None) -> "AhatPointSource":
-        """Rays of every ``point_stride``-th pixel; a raycaster of ``mesh`` (or the recording's mesh) when unwrapping."""
+        """Rays of every ``point_stride``-th pixel; a raycaster of ``mesh`` (default: the recording's cached
+        mesh scene) when unwrapping."""
         s = cfg.point_stride
         h, w = rec.ahat.shape
         rr, cc = np.meshgrid(np.arange(s // 2, h, s), np.arange(s // 2, w, s), indexing="ij")
         rows, cols = rr.ravel(), cc.ravel()
-        xy = rec.ahat.uv2xy[rows, cols].astype(np.float64)
-        xy1 = np.concatenate([xy, np.ones((len(xy), 1))], axis=1)
-        dirs = xy1 / np.linalg.norm(xy1, axis=1, keepdims=True)
+        dirs = ahat_unit_rays(rec.ahat.uv2xy[rows, cols])
         rc = None
         if cfg.unwrap_with_mesh:
-            if mesh is None:
-                mesh = rec.mesh()
-            if mesh is not None and len(mesh.triangles):
-                import open3d as o3d
-
-                rc = o3d.t.geometry.RaycastingScene()
-                rc.add_triangles(o3d.t.geometry.TriangleMesh.from_legacy(mesh))
+            rc = rec.mesh_scene() if mesh is None else mesh_raycasting_scene(mesh)
         return cls(rec=rec, cfg=cfg, rows=rows, cols=cols, dirs=dirs, raycaster=rc, alias_m=rec.ahat.alias_m)
 
     def ahat_to_world(self, i: int) -> np.ndarray | None:

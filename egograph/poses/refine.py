@@ -357,9 +357,11 @@ def pose_change(before_row: np.ndarray, after_row: np.ndarray) -> dict:
 
 # ------------------------------------------------------------------ output
 
-def write_refined(result: RefineResult, out: str | Path, rec, cfg: RefineConfig, extra: dict | None = None) -> Path:
+def write_refined(result: RefineResult, out: str | Path, rec, cfg: RefineConfig, extra: dict | None = None,
+                  run_files: dict[str, str] | None = None) -> Path:
     """Write OUT/{pv_pose.json, depth_ahat_pose.json, pv_pose.tum, depth_ahat_pose.tum, report.json, report.md}
-    atomically. Refuses to write into the recording's own folder."""
+    atomically, with ``run_files`` (name -> text: run record, configuration) in the same rename.
+    Refuses to write into the recording's own folder."""
     from egograph.core.config import to_dict
     from egograph.io.atomic import atomic_dir
     from egograph.io.poses import write_pose_json
@@ -383,6 +385,8 @@ def write_refined(result: RefineResult, out: str | Path, rec, cfg: RefineConfig,
         write_tum(tmp / "depth_ahat_pose.tum", result.timestamps, rig)
         (tmp / "report.json").write_text(json.dumps(report, indent=1, default=_jsonable))
         (tmp / "report.md").write_text(report_markdown(report))
+        for name, text in (run_files or {}).items():
+            (tmp / name).write_text(text)
     return out
 
 

@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+from pathlib import Path
+
 import numpy as np
 
 from egograph.io.annotations import load_annotations, read_mvpe_photos
@@ -9,6 +11,38 @@ from egograph.io.detections import read_detection_dir
 from egograph.io.poses import read_pose_json
 from egograph.io.recording import Recording
 from egograph.poses.metrics import error_summary, pose_differences
+
+
+def ply_face_count(path: Path) -> int | None:
+    """Faces declared in a PLY file's header (``element face N``), without reading the mesh; None
+    when the file is not a readable PLY."""
+    try:
+        with open(path, "rb") as f:
+            if f.readline().strip() != b"ply":
+                return None
+            for _ in range(200):
+                line = f.readline()
+                if not line or line.strip() == b"end_header":
+                    break
+                parts = line.split()
+                if parts[:2] == [b"element", b"face"] and len(parts) == 3:
+                    return int(parts[2])
+    except (OSError, ValueError):
+        return None
+    return 0
+
+
+def mesh_triangle_count(rec: Recording) -> int | None:
+    """Triangles of the recording's mesh files; PLY headers are read directly (``info`` stays light),
+    other formats through Open3D. None without a mesh."""
+    paths = rec.mesh_paths()
+    if not paths:
+        return None
+    counts = [ply_face_count(p) if p.suffix.lower() == ".ply" else None for p in paths]
+    if any(c is None for c in counts):
+        mesh = rec.mesh()
+        return None if mesh is None else len(mesh.triangles)
+    return sum(counts)
 
 
 def summarize(rec: Recording, depth_samples: int = 5) -> dict:
@@ -28,9 +62,7 @@ def summarize(rec: Recording, depth_samples: int = 5) -> dict:
         "calibration": str(rec.calibration_dir),
         "mesh_triangles": None,
     }
-    mesh = rec.mesh()
-    if mesh is not None:
-        out["mesh_triangles"] = len(mesh.triangles)
+    out["mesh_triangles"] = mesh_triangle_count(rec)
     idx = np.linspace(0, len(rec) - 1, min(depth_samples, len(rec))).astype(int)
     shares = [float((d > 0).mean()) for d in (rec.depth_raw(int(i)) for i in idx) if d is not None]
     out["depth_valid_share"] = float(np.mean(shares)) if shares else None

@@ -1,16 +1,17 @@
 """The pipeline's typed configuration (``configs/default.yaml``), one section per stage.
 
-Each stage declares its own knobs where it is implemented (``LiftConfig`` in
-``egograph/geometry/lift.py``, ``BaselineConfig`` in ``egograph/track/baselines.py``, ``GraphConfig`` in
-``egograph/track/graph.py``);
-this module only assembles them. ``egograph <cmd> --show-config`` lists every knob.
+Each stage declares its own knobs, with their documentation and allowed values, in a config module
+of its layer that imports no heavy dependency: ``IoConfig`` in ``egograph/io/config.py``,
+``LiftConfig`` in ``egograph/geometry/config.py``, ``RefineConfig`` in ``egograph/poses/config.py``,
+the trackers' in ``egograph/track/config.py``; this module only assembles them.
+``egograph <cmd> --show-config`` lists every knob.
 """
 
 from __future__ import annotations
 
 from dataclasses import dataclass
 
-from egograph.core.config import section
+from egograph.core.config import Checked, section
 from egograph.geometry.config import LiftConfig
 from egograph.io.config import IoConfig
 from egograph.poses.config import RefineConfig
@@ -18,7 +19,7 @@ from egograph.track.config import BaselineConfig, GraphConfig, JointConfig, Regt
 
 
 @dataclass
-class EgographConfig:
+class EgographConfig(Checked):
     io: IoConfig = section(IoConfig, "reading recordings")
     lift: LiftConfig = section(LiftConfig, "2D detections -> 3D observations")
     track: BaselineConfig = section(BaselineConfig, "the paper's baseline trackers (memory, kf)")

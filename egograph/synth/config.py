@@ -5,107 +5,144 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
-from egograph.core.config import knob, section
+from egograph.core.config import Checked, knob, rule_error, section
+
+DETECTION_SETS = ("svoe", "mvpe")
+"""The simulated front-ends, one detection set each (``detections.svoe``, ``detections.mvpe``)."""
+
+SCORE_KNOBS = ("true_score", "lookalike_score", "clutter_score", "other_score")
+"""Front-end knobs holding ``[mean, std]`` of a similarity score."""
 
 
 @dataclass
-class SceneConfig:
-    room_size: list[float] = knob([7.0, 6.0, 2.7], "room extent x, z (floor plan) and height y, metres (world is y-up, floor at y=0)")
-    n_instances: int = knob(8, "object instances to track (5-10 in IT3DEgo recordings)")
-    n_lookalike_pairs: int = knob(2, "pairs of near-identical instances (e.g. two similar cups) that confuse appearance matching")
-    moves_per_instance: int = knob(2, "pick-up/put-down cycles per instance (2 gives about three locations); fewer when the recording is too short")
-    min_object_gap: float = knob(0.25, "minimum distance between resting objects on a surface, metres")
-    mesh_noise: float = knob(0.01, "std of the HoloLens scene mesh vertex noise, metres")
-    mesh_edge: float = knob(0.08, "edge length the scene is subdivided to before the mesh noise, metres")
-    mesh_triangles: int = knob(6000, "triangle budget of the decimated HoloLens mesh")
+class SceneConfig(Checked):
+    room_size: list[float] = knob([7.0, 6.0, 2.7], "room extent x, z (floor plan) and height y, metres (world is y-up, floor at y=0)",
+                                  gt=0.0, length=3)
+    n_instances: int = knob(8, "object instances to track (5-10 in IT3DEgo recordings)", min=1)
+    n_lookalike_pairs: int = knob(2, "pairs of near-identical instances (e.g. two similar cups) that confuse appearance matching",
+                                  min=0)
+    moves_per_instance: int = knob(2, "pick-up/put-down cycles per instance (2 gives about three locations); fewer when the recording is too short",
+                                   min=0)
+    min_object_gap: float = knob(0.25, "minimum distance between resting objects on a surface, metres", min=0.0)
+    mesh_noise: float = knob(0.01, "std of the HoloLens scene mesh vertex noise, metres", min=0.0)
+    mesh_edge: float = knob(0.08, "edge length the scene is subdivided to before the mesh noise, metres", gt=0.0)
+    mesh_triangles: int = knob(6000, "triangle budget of the decimated HoloLens mesh", min=1)
 
 
 @dataclass
-class WearerConfig:
-    head_height: float = knob(1.62, "eye height while standing, metres")
-    walk_speed: float = knob(1.3, "walking speed, m/s")
-    reach_time: float = knob(0.8, "time spent looking at an object before picking it up / while putting it down, s")
-    carry_distance: list[float] = knob([0.3, 0.6], "range of hand-to-eye distance while carrying, metres")
-    idle_time: list[float] = knob([0.6, 1.8], "range of look-around time after each put-down, s")
-    head_turn_rate: float = knob(0.7, "fast head turns per second while looking around")
-    head_turn_angle: list[float] = knob([40.0, 100.0], "range of yaw of a fast head turn, degrees")
-    head_turn_time: list[float] = knob([0.2, 0.4], "range of duration of a fast head turn, s (peak rates reach 300-500 deg/s)")
-    gaze_time_constant: float = knob(0.12, "time constant of the head following its gaze target, s")
+class WearerConfig(Checked):
+    head_height: float = knob(1.62, "eye height while standing, metres", gt=0.0)
+    walk_speed: float = knob(1.3, "walking speed, m/s", gt=0.0)
+    reach_time: float = knob(0.8, "time spent looking at an object before picking it up / while putting it down, s",
+                             min=0.0)
+    carry_distance: list[float] = knob([0.3, 0.6], "range of hand-to-eye distance while carrying, metres",
+                                       gt=0.0, length=2, ordered=True)
+    idle_time: list[float] = knob([0.6, 1.8], "range of look-around time after each put-down, s",
+                                  min=0.0, length=2, ordered=True)
+    head_turn_rate: float = knob(0.7, "fast head turns per second while looking around", min=0.0)
+    head_turn_angle: list[float] = knob([40.0, 100.0], "range of yaw of a fast head turn, degrees",
+                                        min=0.0, length=2, ordered=True)
+    head_turn_time: list[float] = knob([0.2, 0.4], "range of duration of a fast head turn, s (peak rates reach 300-500 deg/s)",
+                                       gt=0.0, length=2, ordered=True)
+    gaze_time_constant: float = knob(0.12, "time constant of the head following its gaze target, s", gt=0.0)
 
 
 @dataclass
-class AhatConfig:
-    focal: float = knob(250.0, "AHAT focal length, pixels (512x512, about 90 deg field of view)")
-    tilt: float = knob(15.0, "AHAT camera pitch below the head's forward direction, degrees")
-    alias_mm: float = knob(1055.0, "range at which AHAT readings wrap, mm (alias.bin; 1055 current firmware, 999 older)")
-    depth_factor: float = knob(4.0, "raw unit: raw = range_mm / depth_factor (4 in the hl2ss version IT3DEgo used, 1 current)")
-    noise_std: float = knob(0.003, "range noise std at 1 m, metres; grows with range squared")
-    max_range: float = knob(3.5, "returns beyond this true range (metres) fade out (invalid pixels)")
-    dark_invalid: float = knob(0.35, "probability that a pixel on a dark surface (albedo < 0.25) has no return")
-    invalid_rate: float = knob(0.02, "share of pixels with no return anywhere (speckle)")
-    flying_pixel_rate: float = knob(0.5, "probability that a depth-edge pixel reads a value between foreground and background")
+class AhatConfig(Checked):
+    focal: float = knob(250.0, "AHAT focal length, pixels (512x512, about 90 deg field of view)", gt=0.0)
+    tilt: float = knob(15.0, "AHAT camera pitch below the head's forward direction, degrees", min=-90.0, max=90.0)
+    alias_mm: float = knob(1055.0, "range at which AHAT readings wrap, mm (alias.bin; 1055 current firmware, 999 older)",
+                           gt=0.0)
+    depth_factor: float = knob(4.0, "raw unit: raw = range_mm / depth_factor (4 in the hl2ss version IT3DEgo used, 1 current)",
+                               gt=0.0)
+    noise_std: float = knob(0.003, "range noise std at 1 m, metres; grows with range squared", min=0.0)
+    max_range: float = knob(3.5, "returns beyond this true range (metres) fade out (invalid pixels)", gt=0.0)
+    dark_invalid: float = knob(0.35, "probability that a pixel on a dark surface (albedo < 0.25) has no return",
+                               min=0.0, max=1.0)
+    invalid_rate: float = knob(0.02, "share of pixels with no return anywhere (speckle)", min=0.0, max=1.0)
+    flying_pixel_rate: float = knob(0.5, "probability that a depth-edge pixel reads a value between foreground and background",
+                                    min=0.0, max=1.0)
     time_offset_ms: float = knob(5.0, "AHAT capture time minus PV capture time, ms (jitter 1 ms)")
 
 
 @dataclass
-class PvConfig:
-    focal: float = knob(1000.0, "PV focal length, pixels (1280x720, about 65 deg horizontal field of view)")
-    tilt: float = knob(5.0, "PV camera pitch below the head's forward direction, degrees")
+class PvConfig(Checked):
+    focal: float = knob(1000.0, "PV focal length, pixels (1280x720, about 65 deg horizontal field of view)", gt=0.0)
+    tilt: float = knob(5.0, "PV camera pitch below the head's forward direction, degrees", min=-90.0, max=90.0)
     rgb: bool = knob(True, "render PV RGB frames (switch off for speed: depth, poses, annotations are always written)")
-    png_compression: int = knob(1, "PNG compression level of PV frames (0-9)")
-    visibility_downsample: int = knob(4, "PV visibility buffer is rendered at 1/N resolution (occlusion and box annotations)")
+    png_compression: int = knob(1, "PNG compression level of PV frames (0-9)", min=0, max=9)
+    visibility_downsample: int = knob(4, "PV visibility buffer is rendered at 1/N resolution (occlusion and box annotations)",
+                                      min=1)
 
 
 @dataclass
-class PoseErrorConfig:
+class PoseErrorConfig(Checked):
     enabled: bool = knob(True, "perturb reported poses; false writes the true poses")
-    jitter_trans: float = knob(0.001, "per-frame translation jitter std, metres")
-    jitter_rot: float = knob(0.1, "per-frame rotation jitter std, degrees")
-    drift_trans: float = knob(0.002, "random-walk translation drift, metres per sqrt(second)")
-    drift_rot: float = knob(0.03, "random-walk yaw drift, degrees per sqrt(second)")
-    jump_rate: float = knob(0.08, "probability of a relocalisation jump after a fast head turn")
-    jump_trans: list[float] = knob([0.02, 0.06], "range of relocalisation jump size, metres")
-    jump_rot: list[float] = knob([0.2, 0.6], "range of relocalisation jump rotation, degrees")
-    fast_turn_rate: float = knob(150.0, "head angular speed counted as a fast turn, deg/s")
+    jitter_trans: float = knob(0.001, "per-frame translation jitter std, metres", min=0.0)
+    jitter_rot: float = knob(0.1, "per-frame rotation jitter std, degrees", min=0.0)
+    drift_trans: float = knob(0.002, "random-walk translation drift, metres per sqrt(second)", min=0.0)
+    drift_rot: float = knob(0.03, "random-walk yaw drift, degrees per sqrt(second)", min=0.0)
+    jump_rate: float = knob(0.08, "probability of a relocalisation jump after a fast head turn", min=0.0, max=1.0)
+    jump_trans: list[float] = knob([0.02, 0.06], "range of relocalisation jump size, metres",
+                                   min=0.0, length=2, ordered=True)
+    jump_rot: list[float] = knob([0.2, 0.6], "range of relocalisation jump rotation, degrees",
+                                 min=0.0, length=2, ordered=True)
+    fast_turn_rate: float = knob(150.0, "head angular speed counted as a fast turn, deg/s", gt=0.0)
 
 
 @dataclass
-class FrontEndConfig:
+class FrontEndConfig(Checked):
     """A simulated appearance front-end (detector + instance matcher), top-1 per instance per frame."""
 
-    detect_rate: float = knob(0.8, "detection probability of a fully visible, large, sharp instance")
-    min_visible: float = knob(0.15, "visible share below which an instance is never detected")
-    size_half_px: float = knob(40.0, "box side (pixels) at which detection probability halves")
-    size_exponent: float = knob(4.0, "steepness of the fall of detection probability with box side: s^e / (s^e + half^e)")
-    min_box_px: float = knob(34.0, "boxes with a smaller side (pixels) are never proposed (region proposals drop tiny regions)")
-    blur_half_dps: float = knob(120.0, "image-motion rate (deg/s) at which detection probability halves")
-    true_score: list[float] = knob([0.7, 0.08], "mean and std of the similarity score of a true match")
-    lookalike_score: list[float] = knob([0.62, 0.08], "mean and std of the score of the look-alike twin")
-    clutter_score: list[float] = knob([0.5, 0.08], "mean and std of the score of persistent background clutter")
-    other_score: list[float] = knob([0.3, 0.06], "mean and std of the score of a different (not look-alike) instance")
-    clutter_per_instance: int = knob(3, "persistent clutter spots per instance that resemble it")
-    clutter_rate: float = knob(0.35, "probability that a visible clutter spot produces a candidate in a frame")
-    box_jitter: float = knob(0.08, "box corner jitter, share of box size")
+    detect_rate: float = knob(0.8, "detection probability of a fully visible, large, sharp instance", min=0.0, max=1.0)
+    min_visible: float = knob(0.15, "visible share below which an instance is never detected", min=0.0, max=1.0)
+    size_half_px: float = knob(40.0, "box side (pixels) at which detection probability halves", gt=0.0)
+    size_exponent: float = knob(4.0, "steepness of the fall of detection probability with box side: s^e / (s^e + half^e)",
+                                gt=0.0)
+    min_box_px: float = knob(34.0, "boxes with a smaller side (pixels) are never proposed (region proposals drop tiny regions)",
+                             min=0.0)
+    blur_half_dps: float = knob(120.0, "image-motion rate (deg/s) at which detection probability halves", gt=0.0)
+    true_score: list[float] = knob([0.7, 0.08], "mean and std of the similarity score of a true match", length=2)
+    lookalike_score: list[float] = knob([0.62, 0.08], "mean and std of the score of the look-alike twin", length=2)
+    clutter_score: list[float] = knob([0.5, 0.08], "mean and std of the score of persistent background clutter",
+                                      length=2)
+    other_score: list[float] = knob([0.3, 0.06], "mean and std of the score of a different (not look-alike) instance",
+                                    length=2)
+    clutter_per_instance: int = knob(3, "persistent clutter spots per instance that resemble it", min=0)
+    clutter_rate: float = knob(0.35, "probability that a visible clutter spot produces a candidate in a frame",
+                               min=0.0, max=1.0)
+    box_jitter: float = knob(0.08, "box corner jitter, share of box size", min=0.0)
     min_written_score: float = knob(0.45, "candidates below this similarity are not written (trackers threshold at 0.6)")
 
+    def cross_check(self) -> None:
+        for name in SCORE_KNOBS:
+            if not getattr(self, name)[1] >= 0:
+                raise rule_error(self, "{} must be [mean, std] with std >= 0", name)
+
 
 @dataclass
-class DetectionsConfig:
+class DetectionsConfig(Checked):
     svoe: FrontEndConfig = section(FrontEndConfig, "single-view online enrollment front-end (weaker)")
     mvpe: FrontEndConfig = section(FrontEndConfig, "multi-view pre-enrollment front-end (stronger)")
-    primary: str = knob("svoe", "detection set the demo tracks by default (both sets are always written)")
+    primary: str = knob("svoe", "detection set the demo tracks by default (both sets are always written)",
+                        choices=DETECTION_SETS)
 
 
 @dataclass
-class SynthConfig:
+class SynthConfig(Checked):
     sequence: str = knob("synth_seq", "sequence folder name")
-    frames: int = knob(3000, "number of PV frames at 30 fps")
-    fps: float = knob(30.0, "PV frame rate, frames per second")
-    annotation_stride: int = knob(5, "2D boxes are annotated every Nth frame when at least a quarter visible")
-    mvpe_photo_size: int = knob(256, "side of the rendered MVPE enrollment photos, pixels")
+    frames: int = knob(3000, "number of PV frames at 30 fps", min=1)
+    fps: float = knob(30.0, "PV frame rate, frames per second", gt=0.0)
+    annotation_stride: int = knob(5, "2D boxes are annotated every Nth frame when at least a quarter visible", min=1)
+    mvpe_photo_size: int = knob(256, "side of the rendered MVPE enrollment photos, pixels", min=1)
     scene: SceneConfig = section(SceneConfig, "room, furniture and objects")
     wearer: WearerConfig = section(WearerConfig, "the person wearing the headset")
     ahat: AhatConfig = section(AhatConfig, "AHAT depth sensor model")
     pv: PvConfig = section(PvConfig, "PV (RGB) camera model")
     pose_error: PoseErrorConfig = section(PoseErrorConfig, "HoloLens head-tracking error model of the reported poses")
     detections: DetectionsConfig = section(DetectionsConfig, "simulated detection front-ends")
+
+    def cross_check(self) -> None:
+        # the sequence name becomes a folder under the output root
+        if not self.sequence or "/" in self.sequence or "\\" in self.sequence or self.sequence in (".", ".."):
+            raise rule_error(self, "{} must be a folder name (not empty, no path separator)", "sequence")

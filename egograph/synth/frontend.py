@@ -17,7 +17,7 @@ from egograph.synth.config import FrontEndConfig
 
 SOURCE_TRUE, SOURCE_TWIN, SOURCE_OTHER, SOURCE_CLUTTER = "true", "twin", "other", "clutter"
 # Bumped whenever the same seed, views and knobs would give different detections, so cached
-# recordings (tools/benchset.py) know to re-simulate their detections (recording.json "frontend_revision").
+# recordings (egograph.synth.benchset) know to re-simulate their detections (recording.json "frontend_revision").
 FRONTEND_REVISION = 2
 
 

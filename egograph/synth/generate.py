@@ -44,7 +44,7 @@ from egograph.synth.trajectory import Trajectory, make_trajectory
 
 TS0 = 133_400_000_000_000_000  # a HoloLens-like 100 ns tick count (2023)
 # Bumped whenever the same seed and config would render a different recording, so caches of
-# generated recordings (tools/benchset.py) know to regenerate.
+# generated recordings (egograph.synth.benchset) know to regenerate.
 GENERATOR_REVISION = 3
 STREAMS = ("scene", "activity", "depth", "pose_error", "svoe", "mvpe", "textures", "mesh")
 
@@ -209,8 +209,10 @@ def redetect(root: str | Path, cfg: SynthConfig) -> dict[str, int]:
     return {k: sum(len(v) for v in d.values()) for k, d in detections.items()}
 
 
-def generate(out: str | Path, cfg: SynthConfig, seed: int, progress: bool = True) -> SynthResult:
-    """Generate one recording into ``out`` (replaced atomically when complete)."""
+def generate(out: str | Path, cfg: SynthConfig, seed: int, progress: bool = True,
+             extra_files: dict[str, str] | None = None) -> SynthResult:
+    """Generate one recording into ``out`` (replaced atomically when complete); ``extra_files``
+    (name -> text) are written at its top level in the same rename (run record, configuration)."""
     t_start = time.perf_counter()
     out = Path(out)
     rngs = dict(zip(STREAMS, (np.random.default_rng(s) for s in np.random.SeedSequence(seed).spawn(len(STREAMS)))))
@@ -322,6 +324,8 @@ def generate(out: str | Path, cfg: SynthConfig, seed: int, progress: bool = True
         detections, det_truth = simulate_detections(cfg, seed, ts, views)
         _write_outputs(tmp, cfg, seed, scene, traj, ts, pv_rep, depth_rep, pv_true, depth_true, ahat_cal, pv_cal,
                        views, detections, det_truth, bbox_annot, svoe, jumps, depth_offset, rngs, textures)
+        for name, text in (extra_files or {}).items():
+            (tmp / name).write_text(text)
     seconds = time.perf_counter() - t_start
     n_int = sum(len(stationary_runs(traj.held[:, j])) for j in range(k))
     return SynthResult(out, cfg.sequence, n, [o.name for o in scene.objects], n_int, len(traj.moves), seconds, n / seconds)

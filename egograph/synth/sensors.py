@@ -11,6 +11,8 @@ import open3d as o3d
 
 from egograph.geometry.hl2ss import (
     ahat_range_to_raw,
+    ahat_ray_norms,
+    ahat_xy1,
     invert_rigid,
     pv_intrinsics_matrix,
     rigid_from_rt,
@@ -111,8 +113,7 @@ def hit_albedo(scene: Scene, hit: dict) -> np.ndarray:
 def ahat_camera_rays(calib: AhatCalibration) -> tuple[np.ndarray, np.ndarray]:
     """Per-pixel camera-frame directions [x, y, 1] (H*W, 3) and their norms (H*W,), float32."""
     xy = calib.uv2xy.reshape(-1, 2).astype(np.float32)
-    dirs = np.column_stack([xy, np.ones(len(xy), np.float32)])
-    return dirs, np.linalg.norm(dirs, axis=1)
+    return ahat_xy1(xy), ahat_ray_norms(xy)  # float32 arithmetic, as the renderer
 
 
 def simulate_ahat(rng: np.random.Generator, scene: Scene, geom: FrameGeometry, cam_to_world: np.ndarray,

@@ -7,7 +7,8 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
-from egograph.core.config import knob, section
+from egograph.core.config import Checked, knob, rule_error, section
+from egograph.geometry.config import SUPPORT_GAP_M
 
 KERNELS = ("cauchy", "huber", "geman_mcclure", "tukey", "none")
 """Robust kernels a detection factor can take (``graph.noise.kernel``)."""
@@ -15,102 +16,133 @@ KERNELS = ("cauchy", "huber", "geman_mcclure", "tukey", "none")
 SWITCHES = ("switchable", "dcs")
 """Motion-break factors (``graph.switches``)."""
 
+SCORE_THRESHOLD = 0.6
+"""The paper's acceptance threshold on the matcher score (cosine similarity): the default of
+``track.score_threshold`` (baselines) and ``graph.score_threshold``. They mean the same thing but
+are two knobs so that one tracker can be tuned alone (``smooth`` runs the graph at 0 on another
+tracker's already-thresholded predictions)."""
+
+
+def _score_threshold(doc: str):
+    return knob(SCORE_THRESHOLD, doc, min=-1.0, max=1.0)
+
 
 @dataclass
-class BaselineConfig:
-    score_threshold: float = knob(
-        0.6, "minimum matcher score (cosine similarity) of a detection the baselines use; >= is accepted (paper: 0.6)"
+class BaselineConfig(Checked):
+    score_threshold: float = _score_threshold(
+        "minimum matcher score (cosine similarity) of a detection the baselines use; >= is accepted (paper: 0.6)"
     )
     kf_reset_distance_m: float = knob(
         0.15,
-        "KF: a measurement farther than this from the predicted position resets the filter there, metres (paper: 0.15)",
+        "KF: a measurement farther than this from the predicted position resets the filter there, metres (paper: 0.15)", gt=0.0
     )
     kf_process_noise: float = knob(
         0.1,
         "KF: spectral density q of the white-noise acceleration driving the constant-velocity model, m^2/s^3 "
-        "(acceleration noise; velocity variance grows by q per second, position by q*dt^3/3)",
+        "(acceleration noise; velocity variance grows by q per second, position by q*dt^3/3)", min=0.0
     )
     kf_measurement_noise_m: float = knob(
-        0.05, "KF: standard deviation of each coordinate of a lifted 3D position, metres"
+        0.05, "KF: standard deviation of each coordinate of a lifted 3D position, metres", gt=0.0
     )
     kf_initial_velocity_std: float = knob(
         0.25,
         "KF: standard deviation of each velocity component when a filter starts or resets (velocity 0), m/s "
-        "(small: a newly seen or just-moved object is usually at rest)",
+        "(small: a newly seen or just-moved object is usually at rest)", min=0.0
     )
 
 
 @dataclass
-class DetectionNoiseConfig:
-    range_sigma_m: float = knob(0.04, "detection noise along the viewing ray at zero range, metres (surface vs centre, depth cluster)")
-    range_sigma_per_m: float = knob(0.02, "growth of the along-ray sigma per metre of range (AHAT noise, alias errors)")
-    lateral_sigma_m: float = knob(0.015, "detection noise across the ray at zero range, metres (box jitter on the object)")
-    lateral_sigma_per_m: float = knob(0.012, "growth of the across-ray sigma per metre of range (pose rotation, registration), m/m")
-    kernel: str = knob("cauchy", "robust kernel on detection factors: cauchy | huber | geman_mcclure | tukey | none")
-    kernel_width: float = knob(2.0, "kernel width in whitened units (sigmas)")
+class DetectionNoiseConfig(Checked):
+    range_sigma_m: float = knob(0.04, "detection noise along the viewing ray at zero range, metres (surface vs centre, depth cluster)",
+                                gt=0.0)
+    range_sigma_per_m: float = knob(0.02, "growth of the along-ray sigma per metre of range (AHAT noise, alias errors)",
+                                    min=0.0)
+    lateral_sigma_m: float = knob(0.015, "detection noise across the ray at zero range, metres (box jitter on the object)",
+                                  gt=0.0)
+    lateral_sigma_per_m: float = knob(0.012, "growth of the across-ray sigma per metre of range (pose rotation, registration), m/m",
+                                      min=0.0)
+    kernel: str = knob("cauchy", "robust kernel on detection factors: cauchy | huber | geman_mcclure | tukey | none",
+                       choices=KERNELS)
+    kernel_width: float = knob(2.0, "kernel width in whitened units (sigmas)", gt=0.0)
 
 
 @dataclass
-class NegativeConfig:
+class NegativeConfig(Checked):
     margin_m: float = knob(0.08, "a pixel is empty when its reading, and the mesh, lie at least this far behind "
-                                 "the landmark centre, metres")
-    agree_m: float = knob(0.03, "a reading up to this far behind the landmark centre may still be the object, metres")
+                                 "the landmark centre, metres", gt=0.0)
+    agree_m: float = knob(0.03, "a reading up to this far behind the landmark centre may still be the object, metres",
+                          min=0.0)
     object_radius_m: float = knob(0.15, "a reading up to this far in front of the landmark centre is the object "
-                                        "(occupied), metres")
-    max_range_m: float = knob(2.5, "only landmarks within this range of the depth camera are tested, metres")
-    window_px: int = knob(2, "half side of the AHAT pixel window around the landmark's projection")
-    image_margin_px: float = knob(40.0, "the landmark must project this far inside the PV image, pixels")
-    min_frames: int = knob(3, "consecutive empty frames needed to say the object is gone")
-    stride: int = knob(2, "test every Nth frame of a gap")
-    empty_share: float = knob(0.6, "share of valid window pixels that must be empty for an empty frame")
-    detection_gate_m: float = knob(0.3, "a detection of the instance this close to the landmark means it is there")
-    cache_frames: int = knob(64, "decoded depth frames kept in memory")
+                                        "(occupied), metres", min=0.0)
+    max_range_m: float = knob(2.5, "only landmarks within this range of the depth camera are tested, metres", gt=0.0)
+    window_px: int = knob(2, "half side of the AHAT pixel window around the landmark's projection", min=0)
+    image_margin_px: float = knob(40.0, "the landmark must project this far inside the PV image, pixels", min=0.0)
+    min_frames: int = knob(3, "consecutive empty frames needed to say the object is gone", min=1)
+    stride: int = knob(2, "test every Nth frame of a gap", min=1)
+    empty_share: float = knob(0.6, "share of valid window pixels that must be empty for an empty frame",
+                              min=0.0, max=1.0)
+    detection_gate_m: float = knob(0.3, "a detection of the instance this close to the landmark means it is there",
+                                   min=0.0)
+    cache_frames: int = knob(64, "decoded depth frames kept in memory", min=0)
+
+    def cross_check(self) -> None:
+        # a reading that is both "still the object" and "behind it, empty" would count both ways
+        if not self.agree_m < self.margin_m:
+            raise rule_error(self, "{} must be < {}", "agree_m", "margin_m")
 
 
 @dataclass
-class GraphConfig:
-    score_threshold: float = knob(0.6, "minimum matcher score of a detection the graph uses (the paper's 0.6)")
-    chunk_s: float = knob(0.5, "length of the time grid that over-segments an instance's timeline into landmarks, s")
-    still_sigma_m: float = knob(0.05, "sigma of the zero-motion factor between consecutive landmarks, metres")
+class GraphConfig(Checked):
+    score_threshold: float = _score_threshold("minimum matcher score of a detection the graph uses (the paper's 0.6; "
+                                              "the same rule as track.score_threshold, set apart)")
+    chunk_s: float = knob(0.5, "length of the time grid that over-segments an instance's timeline into landmarks, s",
+                          gt=0.0)
+    still_sigma_m: float = knob(0.05, "sigma of the zero-motion factor between consecutive landmarks, metres", gt=0.0)
     switch_sigma: float = knob(0.5, "sigma of the prior pulling each switch to 1; a break costs 0.5/sigma^2 and "
-                                    "fires where landmarks differ by more than still_sigma_m/switch_sigma")
+                                    "fires where landmarks differ by more than still_sigma_m/switch_sigma", gt=0.0)
     switches: str = knob("switchable", "motion-break factor: 'switchable' (switch variables, CustomFactor) or "
-                                       "'dcs' (dynamic covariance scaling, closed form, all C++)")
+                                       "'dcs' (dynamic covariance scaling, closed form, all C++)", choices=SWITCHES)
     dcs_prepass: bool = knob(True, "switchable only: a DCS solve first; boundaries it finds clearly still get a plain "
                                    "zero-motion factor, the rest explicit switches (far fewer Python CustomFactors)")
-    prepass_keep: float = knob(0.95, "a boundary whose DCS-implied switch is at least this is clearly still")
-    prepass_window: int = knob(10, "each candidate break is solved with this many chunks of the chain either side")
+    prepass_keep: float = knob(0.95, "a boundary whose DCS-implied switch is at least this is clearly still",
+                               min=0.0, max=1.0)
+    prepass_window: int = knob(10, "each candidate break is solved with this many chunks of the chain either side",
+                               min=1)
     prepass_max_window: int = knob(60, "merged windows longer than this many chunks are solved in overlapping pieces "
                                        "of this length (prepass_window chunks of context at each cut), so the cost "
-                                       "grows linearly with the recording, not with the longest run of candidates")
-    break_below: float = knob(0.5, "a switch below this value (0-1) is a motion break")
-    min_observations: int = knob(3, "fewest inlier detections a stationary interval needs")
-    min_inlier_share: float = knob(0.6, "share of a segment's detections its centre must explain to be stationary")
-    inlier_chi2: float = knob(11.34, "squared Mahalanobis gate of an inlier (chi2, 3 dof, 99 %)")
+                                       "grows linearly with the recording, not with the longest run of candidates",
+                                       min=1)
+    break_below: float = knob(0.5, "a switch below this value (0-1) is a motion break", min=0.0, max=1.0)
+    min_observations: int = knob(3, "fewest inlier detections a stationary interval needs", min=1)
+    min_inlier_share: float = knob(0.6, "share of a segment's detections its centre must explain to be stationary",
+                                   min=0.0, max=1.0)
+    inlier_chi2: float = knob(11.34, "squared Mahalanobis gate of an inlier (chi2, 3 dof, 99 %)", gt=0.0)
     merge_radius_m: float = knob(0.12, "stationary segments whose centres are closer than this merge into one "
-                                       "interval when the segments between them are weaker, metres")
-    carry_range_m: float = knob(0.9, "a detection this close to the camera may be an object in hand, metres")
+                                       "interval when the segments between them are weaker, metres", min=0.0)
+    carry_range_m: float = knob(0.9, "a detection this close to the camera may be an object in hand, metres", min=0.0)
     min_carry_observations: int = knob(2, "a non-stationary segment with at least this many detections within "
                                           "carry_range_m is a carry (it ends the interval before it); with fewer "
-                                          "it is taken for scattered false matches and ignored")
+                                          "it is taken for scattered false matches and ignored", min=1)
     pickup_radius_m: float = knob(3.0, "a carry must start within this of the stand before it or end within this "
                                         "of the stand after it (pick-up, put-down; the first detections of a "
-                                        "carry often come a few steps later, after the motion blur), metres")
+                                        "carry often come a few steps later, after the motion blur), metres", min=0.0)
     carry_spread_m: float = knob(0.03, "a near segment whose detections spread more than this (median, metres) "
-                                       "and more than their offsets to the head do is an object in hand")
+                                       "and more than their offsets to the head do is an object in hand", min=0.0)
     exclusion_radius_m: float = knob(0.15, "offline: a stand of one instance within this distance of another "
                                            "instance's better-supported interval at the same time is a look-alike "
-                                           "confusion and is dropped, metres (0 disables)")
+                                           "confusion and is dropped, metres (0 disables)", min=0.0)
     backfill_max_s: float = knob(3.0, "after a carried stretch, an interval starts at most this long before its "
-                                      "first detection, s")
+                                      "first detection, s", min=0.0)
     covariance_floor_m: float = knob(0.03, "isotropic sigma added to every interval covariance for errors shared "
-                                           "by its detections (pose drift, surface-to-centre bias), metres")
-    confidence_scale: float = knob(5.0, "inlier count at which confidence reaches 63 % of the inlier share")
-    alias_rounds: int = knob(1, "re-solves after re-choosing each detection's AHAT alias candidate")
-    max_iterations: int = knob(50, "Levenberg-Marquardt iteration limit")
-    max_support_gap_m: float = knob(0.35, "a stand seen only from within carry_range_m needs the scene mesh at most "
-                                          "this far below its centre (an object held still in hand is in mid-air), "
-                                          "metres; 0 disables; needs the recording's mesh")
+                                           "by its detections (pose drift, surface-to-centre bias), metres", min=0.0)
+    confidence_scale: float = knob(5.0, "inlier count at which confidence reaches 63 % of the inlier share", gt=0.0)
+    alias_rounds: int = knob(1, "re-solves after re-choosing each detection's AHAT alias candidate", min=0)
+    max_iterations: int = knob(50, "Levenberg-Marquardt iteration limit", min=1)
+    max_support_gap_m: float = knob(SUPPORT_GAP_M, "a stand seen only from within carry_range_m needs the scene mesh "
+                                                   "at most this far below its centre (an object held still in hand "
+                                                   "is in mid-air), metres; 0 disables; needs the recording's mesh "
+                                                   "(the quantity of lift.max_support_gap_m, tested on stands)",
+                                    min=0.0)
     negative_evidence: bool = knob(True, "end intervals where depth shows the place empty, and keep apart stands "
                                          "at one place with such evidence between them (reads depth frames)")
     noise: DetectionNoiseConfig = section(DetectionNoiseConfig, "detection factor noise and robust kernel")
@@ -118,17 +150,18 @@ class GraphConfig:
 
 
 @dataclass
-class JointConfig:
-    rounds: int = knob(1, "joint mode: (track -> joint pose/landmark solve -> re-track) rounds")
-    min_inliers: int = knob(3, "joint mode: a stand joins the pose graph with at least this many inlier detections")
+class JointConfig(Checked):
+    rounds: int = knob(1, "joint mode: (track -> joint pose/landmark solve -> re-track) rounds", min=1)
+    min_inliers: int = knob(3, "joint mode: a stand joins the pose graph with at least this many inlier detections",
+                            min=1)
     noise_scale: float = knob(1.0, "joint mode: detection sigmas are multiplied by this in the pose graph; the "
                                    "detections of one stand share part of their error (the visible surface is "
-                                   "not the centre), so they are not independent measurements of the poses")
-    max_iterations: int = knob(50, "joint mode: Levenberg-Marquardt iteration limit of the joint solve")
+                                   "not the centre), so they are not independent measurements of the poses", gt=0.0)
+    max_iterations: int = knob(50, "joint mode: Levenberg-Marquardt iteration limit of the joint solve", min=1)
 
 
 @dataclass
-class RegtConfig:
-    audit_m: float = knob(0.1, "audit: flag a given centre farther than this from the re-estimate, metres ...")
+class RegtConfig(Checked):
+    audit_m: float = knob(0.1, "audit: flag a given centre farther than this from the re-estimate, metres ...", min=0.0)
     audit_sigma: float = knob(4.0, "... and farther than this many sigmas (Mahalanobis, re-estimate covariance; "
-                                   "4 sigma in 3D is a chi2 tail of 0.1 %: only gross disagreements)")
+                                   "4 sigma in 3D is a chi2 tail of 0.1 %: only gross disagreements)", min=0.0)

@@ -18,6 +18,7 @@ import numpy as np
 
 from egograph.core.errors import InputError
 from egograph.core.types import PositionInterval, Prediction
+from egograph.core.units import TICKS_PER_SECOND
 from egograph.io.atomic import atomic_write_text
 
 
@@ -40,10 +41,47 @@ def per_frame_predictions(intervals: Sequence[PositionInterval], timestamps: Seq
     return out
 
 
-def write_intervals_json(path: str | Path, intervals: Sequence[PositionInterval], metadata: dict) -> None:
-    """``{"metadata": {...}, "intervals": [...]}`` written atomically."""
-    doc = {"metadata": metadata, "intervals": [asdict(iv) for iv in intervals]}
-    atomic_write_text(path, json.dumps(doc, indent=1) + "\n")
+SCHEMA_VERSION = 1
+"""Version of the intervals JSON layout (:func:`intervals_json_text`); readers accept this one and
+the unversioned files of egograph 0.1 (``{"metadata", "intervals"}`` only)."""
+
+UNITS = {"xyz": "m, recording world frame", "covariance": "m^2, world frame", "sigma_m": "m",
+         "t_start/t_end/first_seen/last_seen": "HoloLens ticks (100 ns), inclusive",
+         "t_start_s/t_end_s": "s from the first PV frame", "frame_start/frame_end": "PV frame index, inclusive"}
+
+_DERIVED = ("name", "t_start_s", "t_end_s", "frame_start", "frame_end", "sigma_m")
+
+
+def intervals_json_text(intervals: Sequence[PositionInterval], metadata: dict, *,
+                        timestamps: Sequence[int] | None = None, labels: Sequence[str] | None = None,
+                        sequence: str | None = None) -> str:
+    """The intervals document: ``schema_version``, ``units``, ``sequence``, the time base
+    (``first_frame_ticks``, ``n_frames``), ``instances`` (names, index = id), ``metadata`` and one
+    entry per interval with its ticks, seconds from the first frame, frame indices and name."""
+    ts = np.asarray(sorted(int(t) for t in timestamps), np.int64) if timestamps is not None else None
+    t0 = int(ts[0]) if ts is not None and len(ts) else None
+    rows = []
+    for iv in intervals:
+        row = asdict(iv)
+        if labels is not None and 0 <= iv.instance < len(labels):
+            row["name"] = labels[iv.instance]
+        if t0 is not None:
+            row["t_start_s"] = (int(iv.t_start) - t0) / TICKS_PER_SECOND
+            row["t_end_s"] = (int(iv.t_end) - t0) / TICKS_PER_SECOND
+            row["frame_start"] = int(np.searchsorted(ts, int(iv.t_start), "left"))
+            row["frame_end"] = int(np.searchsorted(ts, int(iv.t_end), "right")) - 1
+        row["sigma_m"] = iv.sigma_m
+        rows.append(row)
+    doc = {"schema_version": SCHEMA_VERSION, "units": UNITS, "sequence": sequence,
+           "first_frame_ticks": t0, "n_frames": None if ts is None else len(ts),
+           "instances": list(labels) if labels is not None else None,
+           "metadata": metadata, "intervals": rows}
+    return json.dumps(doc, indent=1) + "\n"
+
+
+def write_intervals_json(path: str | Path, intervals: Sequence[PositionInterval], metadata: dict, **context) -> None:
+    """:func:`intervals_json_text` written atomically (``context``: timestamps, labels, sequence)."""
+    atomic_write_text(path, intervals_json_text(intervals, metadata, **context))
 
 
 def read_intervals_json(path: str | Path) -> tuple[list[PositionInterval], dict]:
@@ -55,10 +93,13 @@ def read_intervals_json(path: str | Path) -> tuple[list[PositionInterval], dict]
         raise InputError(path, "intervals file not found") from None
     except json.JSONDecodeError as exc:
         raise InputError(path, f"not JSON ({exc.msg})", exc.lineno) from None
+    version = doc.get("schema_version")
+    if version is not None and version != SCHEMA_VERSION:
+        raise InputError(path, f"intervals schema_version {version!r}: this egograph reads {SCHEMA_VERSION}")
     out = []
     for k, row in enumerate(doc.get("intervals", [])):
         try:
-            iv = PositionInterval(**row)
+            iv = PositionInterval(**{key: v for key, v in row.items() if key not in _DERIVED})
             iv.xyz = tuple(float(v) for v in iv.xyz)
             cov = np.asarray(iv.covariance, dtype=float)
             if cov.shape != (3, 3) or int(iv.t_end) < int(iv.t_start):

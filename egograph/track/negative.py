@@ -36,12 +36,12 @@ import numpy as np
 from egograph.geometry.hl2ss import (
     ahat_project,
     ahat_to_world_matrix,
+    ahat_unit_rays,
     invert_rigid,
     pose_validity,
     pv_project,
     transform_points,
 )
-from egograph.geometry.lift import mesh_scene
 from egograph.geometry.observations import Observations
 from egograph.track.config import NegativeConfig
 
@@ -54,12 +54,10 @@ class NegativeEvidence:
         ahat = rec.ahat
         self.alias = float(ahat.alias_m)
         self.m_per_raw = float(rec.depth_factor) / float(ahat.scale)
-        uv2xy = np.asarray(ahat.uv2xy, dtype=np.float64)
-        rays = np.concatenate([uv2xy, np.ones(uv2xy.shape[:-1] + (1,))], axis=-1)
-        self.dirs = rays / np.linalg.norm(rays, axis=-1, keepdims=True)  # unit rays, AHAT camera
-        self.ahat_shape = uv2xy.shape[:2]
+        self.dirs = ahat_unit_rays(ahat.uv2xy)  # (H, W, 3) float64 unit rays, AHAT camera
+        self.ahat_shape = self.dirs.shape[:2]
         self.pv_shape = tuple(rec.pv.shape)
-        self.scene = mesh_scene(rec.mesh())
+        self.scene = rec.mesh_scene()  # the recording's cached scene: the lift already built it
         keep = obs.valid & (np.asarray(obs.score, np.float32) >= np.float32(score_threshold))
         self.det = {}
         for inst in np.unique(obs.instance[keep]):

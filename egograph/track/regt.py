@@ -26,7 +26,7 @@ from egograph.geometry.observations import Observations
 from egograph.io.annotations import Annotations, CenterAnnotation
 from egograph.track.config import GraphConfig, RegtConfig
 from egograph.track.detection_factor import detection_covariances, mahalanobis2
-from egograph.track.graph import fixed_interval_estimate
+from egograph.track.segments import fixed_interval_estimate
 from egograph.track.joint import Stand
 
 

@@ -1,0 +1,120 @@
+"""Self-describing, reproducible outputs and the skip rule of every step.
+
+Every output folder a step writes holds, beside its data, ``config.yaml`` (the resolved
+configuration: ``--config config.yaml`` runs it again) and ``egograph.json`` (the run record:
+step, egograph version, command line, inputs and the fingerprint of all of them). A step called
+with ``overwrite=False`` whose output already carries the same fingerprint returns the result read
+back from disk instead of computing it again. File outputs (observations ``.npz``) carry the same
+record inside the file.
+
+No wall-clock time is recorded: the same inputs, configuration and command give the same bytes.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+import shlex
+import sys
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import yaml
+
+from egograph import __version__
+from egograph.core.config import to_dict
+
+RUN_FILE = "egograph.json"
+CONFIG_FILE = "config.yaml"
+
+
+def command_line(argv: list[str] | None = None) -> str:
+    """The command that is running, as a shell line (``egograph track ...`` for the CLI)."""
+    argv = list(sys.argv if argv is None else argv)
+    if argv and Path(argv[0]).name in ("egograph", "__main__.py", "-c"):
+        argv[0] = "egograph"
+    return shlex.join(argv)
+
+
+def digest(*parts: Any) -> str:
+    """sha256 (hex, 16 chars) of JSON-able parts and numpy arrays, order-sensitive."""
+    h = hashlib.sha256()
+    for p in parts:
+        if isinstance(p, np.ndarray):
+            a = np.ascontiguousarray(p)
+            h.update(f"{a.dtype}{a.shape}".encode())
+            h.update(a.tobytes())
+        else:
+            h.update(json.dumps(p, sort_keys=True, default=str).encode())
+    return h.hexdigest()[:16]
+
+
+def recording_digest(rec) -> dict:
+    """What of a recording every step depends on, cheaply: its name, frame timestamps and poses (so
+    refined poses give a different digest); depth and PV images are not hashed (use overwrite=True
+    after editing them in place)."""
+    return {"sequence": rec.name, "path": str(rec.seq_dir), "frames": len(rec),
+            "poses": digest(rec.timestamps, rec.pv_poses, rec.pv_valid, rec.depth_poses, rec.depth_valid)}
+
+
+def folder_digest(path: Path) -> str:
+    """Digest of a folder of small text files (names and contents), e.g. a detections folder."""
+    path = Path(path)
+    h = hashlib.sha256()
+    for f in sorted(p for p in path.iterdir() if p.is_file() and not p.name.startswith(".")):
+        h.update(f.name.encode())
+        h.update(f.read_bytes())
+    return h.hexdigest()[:16]
+
+
+def config_yaml(cfg) -> str:
+    """The resolved configuration as YAML that ``load_config`` reads back."""
+    try:
+        from egograph.core.config import to_yaml
+    except ImportError:
+        to_yaml = None
+    if to_yaml is not None:
+        return to_yaml(cfg)
+    return yaml.safe_dump(to_dict(cfg), sort_keys=False)
+
+
+def run_record(step: str, cfg, inputs: dict, argv: list[str] | None = None) -> dict:
+    """The run record of a step: what made the output (``fingerprint`` covers step, version,
+    inputs and configuration; the command line is recorded but not part of it)."""
+    config = to_dict(cfg) if cfg is not None else None
+    return {"step": step, "egograph_version": __version__, "command": command_line(argv),
+            "inputs": inputs, "config": config, "fingerprint": digest(step, __version__, inputs, config)}
+
+
+def run_files(record: dict, cfg) -> dict[str, str]:
+    """``{config.yaml, egograph.json}`` texts for an output folder."""
+    files = {RUN_FILE: json.dumps(record, indent=1, default=str) + "\n"}
+    if cfg is not None:
+        files[CONFIG_FILE] = config_yaml(cfg)
+    return files
+
+
+def write_run_files(folder: Path, record: dict, cfg) -> None:
+    """Write the run files into a folder being built (a temporary folder before its rename)."""
+    for name, text in run_files(record, cfg).items():
+        (Path(folder) / name).write_text(text)
+
+
+def previous_record(out: Path) -> dict | None:
+    """The run record of an existing output folder, or None."""
+    f = Path(out) / RUN_FILE
+    if not f.is_file():
+        return None
+    try:
+        return json.loads(f.read_text())
+    except (OSError, json.JSONDecodeError):
+        return None
+
+
+def up_to_date(out: Path | None, record: dict, overwrite: bool) -> bool:
+    """Whether ``out`` already holds the output of exactly this run (same fingerprint)."""
+    if out is None or overwrite:
+        return False
+    prev = previous_record(out)
+    return prev is not None and prev.get("fingerprint") == record["fingerprint"]

@@ -1,0 +1,51 @@
+"""Step ``refine``: the HoloLens poses refined with a pose graph (``cfg.refine``), written as
+``pv_pose.json``, ``depth_ahat_pose.json``, TUM files, ``report.json``/``report.md``,
+``config.yaml`` and ``egograph.json`` in one folder (one rename)."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+from egograph.core.errors import ConfigError, InputError
+from egograph.io.recording import Recording
+from egograph.steps import outputs
+
+
+def check_output(rec: Recording, out: Path) -> None:
+    o, seq = Path(out).resolve(), rec.seq_dir.resolve()
+    if o == seq or o in seq.parents:
+        raise InputError(out, "refusing to overwrite the input recording; choose another --out folder")
+
+
+def refine(rec: Recording, cfg, out: str | Path | None = None, *, overwrite: bool = False, progress: bool = False):
+    """Refined poses of ``rec`` -> ``(RefineResult, extra)``; ``extra`` holds the pose errors
+    against ``synth_gt/`` before and after, when the recording has them. With ``out`` the folder is
+    written; an ``out`` already holding this exact run is left as it is (``RefineResult`` None)."""
+    import warnings
+
+    from egograph.poses.refine import refine_recording, write_refined
+
+    cfg.refine.check()
+    record = outputs.run_record("refine", cfg, {"recording": outputs.recording_digest(rec)})
+    record["fingerprint"] = outputs.digest("refine", record["egograph_version"], record["inputs"],
+                                           {"refine": record["config"]["refine"]})
+    if out is not None:
+        check_output(rec, Path(out))
+        if outputs.up_to_date(out, record, overwrite):
+            return None, {}
+    if cfg.refine.colmap and not any(rec.pv_path(i).is_file() for i in range(0, len(rec), max(1, len(rec) // 10))):
+        raise ConfigError(f"refine.colmap=true needs PV images ({rec.seq_dir / 'pv'}/<ts>.png); none found")
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", UserWarning)  # missing/unreadable depth frames are counted, not printed
+        result = refine_recording(rec, cfg.refine, progress=progress)
+    extra = {}
+    if rec.synth_gt_dir is not None and (rec.synth_gt_dir / "pv_pose.json").is_file():
+        from egograph.io.poses import read_pose_json
+        from egograph.poses.evaluate import evaluate_trajectory
+
+        _, gt, _ = read_pose_json(rec.synth_gt_dir / "pv_pose.json")
+        extra["eval_reported"] = evaluate_trajectory(rec.pv_poses, gt).as_dict()
+        extra["eval_refined"] = evaluate_trajectory(result.pv_poses, gt).as_dict()
+    if out is not None:
+        write_refined(result, out, rec, cfg.refine, extra, run_files=outputs.run_files(record, cfg))
+    return result, extra

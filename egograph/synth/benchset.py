@@ -1,0 +1,213 @@
+"""The benchmark set: cached synthetic recordings, and the observations lifted from them.
+
+Recordings (no RGB) live under ``CACHE/f<frames>[_<overrides>]/seed<seed>``. A cached recording is
+reused when its seed, length and scene config match; when only the detection front-ends differ,
+its detections are re-simulated (``redetect``) instead of re-rendering everything.
+
+Observations lifted from a cached recording are kept beside it, in ``<root>/observations/``, under
+a key of everything they depend on (:func:`observations_key`), so every benchmark shares them.
+"""
+
+from __future__ import annotations
+
+import functools
+import hashlib
+import json
+import shutil
+from pathlib import Path
+from typing import Sequence
+
+import numpy as np
+
+from egograph.core.config import load_config, to_dict
+from egograph.core.errors import InputError
+from egograph.geometry.observations import Observations
+from egograph.io.recording import Recording
+from egograph.synth.config import SynthConfig
+from egograph.synth.frontend import FRONTEND_REVISION
+from egograph.synth.generate import GENERATOR_REVISION, generate, redetect
+
+ORACLE = "oracle"
+"""Observation source: the true boxes (:func:`egograph.synth.oracle.true_box_detections`)."""
+
+ANNOTATED_BOXES = "boxes"
+"""Observation source: the annotated 2D boxes (every 5th frame when at least a quarter visible)."""
+
+
+def rendered_config(config: dict) -> dict:
+    """A recording's config without its detection front-ends: what re-rendering depends on."""
+    return {k: v for k, v in config.items() if k != "detections"}
+
+
+def set_dir(cache: str | Path, frames: int, overrides: Sequence[str] = ()) -> Path:
+    """The folder of one benchmark set: ``CACHE/f<frames>`` plus a tag of the generator overrides."""
+    tag = "_".join(o.replace("=", "-").replace(".", "_") for o in overrides)
+    return Path(cache) / f"f{frames}{'_' + tag if tag else ''}"
+
+
+def benchmark_set(seeds: Sequence[int], frames: int, *, config: str | Path, cache: str | Path,
+                  overrides: Sequence[str] = (), progress: bool = True) -> list[Path]:
+    """Roots of the cached benchmark recordings, one per seed: generated from the synth ``config``
+    (plus ``frames``, no PV RGB and ``overrides``) when missing or when the scene config or the
+    generator revision changed; detections re-simulated when only the front-ends changed."""
+    cfg = load_config(SynthConfig, config, [f"frames={frames}", "pv.rgb=false", *overrides])
+    want = to_dict(cfg)
+    roots = []
+    for seed in seeds:
+        root = set_dir(cache, frames, overrides) / f"seed{seed}"
+        meta_path = root / "recording.json"
+        meta = json.loads(meta_path.read_text()) if meta_path.exists() else None
+        have = meta["config"] if meta else None
+        if meta is None or meta.get("seed") != seed or meta.get("revision") != GENERATOR_REVISION \
+                or rendered_config(have) != rendered_config(want):
+            print(f"generating benchmark recording seed {seed} ({frames} frames) -> {root}", flush=True)
+            generate(root, cfg, seed=seed, progress=progress)
+        elif have.get("detections") != want["detections"] or meta.get("frontend_revision", 1) != FRONTEND_REVISION:
+            print(f"re-simulating detections of seed {seed} (front-end config or revision changed)", flush=True)
+            redetect(root, cfg)
+        roots.append(root)
+    return roots
+
+
+def rgb_benchmark_set(seeds: Sequence[int], frames: int, *, config: str | Path, cache: str | Path,
+                      overrides: Sequence[str] = ()) -> list[Path]:
+    """Cached recordings with PV RGB (slow to generate: about 3 frames/s), for pose refinement
+    with COLMAP. Refinement never reads the detections: a front-end change does not re-render."""
+    cfg = load_config(SynthConfig, config, [f"frames={frames}", *overrides])
+    out = []
+    for seed in seeds:
+        root = set_dir(cache, frames, overrides) / f"seed{seed}"
+        meta = root / "recording.json"
+        ok = meta.exists() and json.loads(meta.read_text()).get("revision") == GENERATOR_REVISION \
+            and rendered_config(json.loads(meta.read_text())["config"]) == rendered_config(to_dict(cfg))
+        if not ok:
+            print(f"generating RGB benchmark recording seed {seed} ({frames} frames) -> {root}", flush=True)
+            generate(root, cfg, seed=seed, progress=True)
+        out.append(root)
+    return out
+
+
+def exact_poses_view(root: Path) -> Path:
+    """A view of a cached recording with the true poses as the reported ones (``<root>_exact``
+    beside it): the generator's random streams are independent, so this equals generating it with
+    ``pose_error.enabled=false``. Everything but the two pose files is a symlink."""
+    seq = next(p for p in root.iterdir() if (p / "pv_pose.json").is_file())
+    out = root.parent / f"{root.name}_exact"
+    if (out / seq.name / "pv_pose.json").exists():
+        return out
+    tmp = root.parent / f".{root.name}_exact.tmp"
+    shutil.rmtree(tmp, ignore_errors=True)
+    tmp.mkdir()
+    for p in root.iterdir():
+        if p != seq:
+            (tmp / p.name).symlink_to(p.resolve())
+    (tmp / seq.name).mkdir()
+    for p in seq.iterdir():
+        if p.name not in ("pv_pose.json", "depth_ahat_pose.json"):
+            (tmp / seq.name / p.name).symlink_to(p.resolve())
+    for name in ("pv_pose.json", "depth_ahat_pose.json"):
+        shutil.copy(root / "synth_gt" / seq.name / name, tmp / seq.name / name)
+    tmp.rename(out)
+    return out
+
+
+# ---------------------------------------------------------------- observations
+
+
+def poses_digest(rec: Recording) -> str:
+    """sha256 (hex) of the poses a recording carries: timestamps, PV and AHAT validity and the
+    valid row-vector poses (invalid ones hold NaN and are left out, so NaN bit patterns do not
+    matter)."""
+    h = hashlib.sha256()
+    for a in (rec.timestamps, rec.pv_valid, rec.pv_poses[rec.pv_valid], rec.depth_valid,
+              rec.depth_poses[rec.depth_valid]):
+        a = np.ascontiguousarray(a)
+        h.update(f"{a.dtype}{a.shape}".encode())
+        h.update(a.tobytes())
+    return h.hexdigest()
+
+
+def uses_reported_poses(rec: Recording, cfg) -> bool:
+    """Whether ``rec`` carries the poses its files report, read with ``cfg.io``. Refined poses
+    applied to it (``apply_poses``), or poses edited in place, make this False."""
+    files = tuple((str(p), p.stat().st_mtime_ns, p.stat().st_size) if p.is_file() else (str(p), None, None)
+                  for p in (rec.seq_dir / "pv_pose.json", rec.seq_dir / "depth_ahat_pose.json"))
+    reported = _reported_digest(rec.seq_dir, rec.calibration_dir, cfg.io.invalid_poses, files)
+    return reported is not None and reported == poses_digest(rec)
+
+
+@functools.lru_cache(maxsize=32)
+def _reported_digest(seq_dir: Path, calibration_dir: Path, invalid_poses: str, files: tuple) -> str | None:
+    """:func:`poses_digest` of the poses in a sequence's files (``files``: their paths, mtimes and
+    sizes, so an edited file is read again); None when they do not open with ``invalid_poses``."""
+    try:
+        reported = Recording.open(seq_dir, calibration=calibration_dir, invalid_poses=invalid_poses, depth_factor=1.0)
+    except InputError:  # the files do not open with cfg.io: rec's poses came from elsewhere
+        return None
+    return poses_digest(reported)
+
+
+def observations_key(rec: Recording, source: str, cfg) -> str:
+    """Cache key (12 hex) of the observations of ``source`` lifted from ``rec`` with ``cfg``.
+
+    Hashes, in order: for a detection set of the recording, its detection front-end config and
+    front-end revision (``recording.json``); then the lifting knobs that change results
+    (``cfg.lift.result_knobs()``) and the io config; then, only when ``rec`` does not carry its
+    reported poses, a digest of the PV and AHAT poses it does carry. (With the reported poses, the
+    detection sets' and the annotated boxes' keys are the ones earlier benchmark runs wrote, so their
+    observations stay valid; the oracle's earlier key hashed the whole lift config.)
+    """
+    parts: list = []
+    if source not in (ORACLE, ANNOTATED_BOXES):
+        meta = json.loads((rec.root / "recording.json").read_text())
+        parts += [meta["config"]["detections"], meta.get("frontend_revision", 1)]
+    parts += [cfg.lift.result_knobs(), to_dict(cfg.io)]
+    if not uses_reported_poses(rec, cfg):
+        parts.append(poses_digest(rec))
+    blob = json.dumps(parts, sort_keys=True)
+    return hashlib.sha256(blob.encode()).hexdigest()[:12]
+
+
+def observations_path(rec: Recording, source: str, cfg) -> Path:
+    """``<root>/observations/<source>[_<lift mode>]_<key>.npz`` (detection sets carry the mode in
+    the name; the oracle's and the annotated boxes' names do not, their key holds it)."""
+    name = source if source in (ORACLE, ANNOTATED_BOXES) else f"{source}_{cfg.lift.mode}"
+    return rec.root / "observations" / f"{name}_{observations_key(rec, source, cfg)}.npz"
+
+
+def source_detections(rec: Recording, source: str, cfg) -> tuple[dict, int | None]:
+    """``(detections ts -> [Detection], instance bound or None)`` of an observation source."""
+    if source == ORACLE:
+        from egograph.synth.oracle import true_box_detections
+
+        return true_box_detections(rec), None
+    if source == ANNOTATED_BOXES:
+        from egograph.io.annotations import load_annotations
+        from egograph.track.regt import box_detections
+
+        return box_detections(load_annotations(rec.annotation_dir)), None
+    from egograph.io.annotations import read_labels
+    from egograph.io.detections import read_detection_dir
+
+    dets = read_detection_dir(rec.detections_dir(source), rec.timestamps, box_format=cfg.io.box_format)
+    n = None if rec.annotation_dir is None else len(read_labels(rec.annotation_dir / "labels.csv"))
+    return dets, n
+
+
+def cached_observations(rec: Recording, source: str, cfg, relift: bool = False):
+    """Observations of ``source`` (a detection set of the recording such as ``svoe``/``mvpe``,
+    :data:`ORACLE` or :data:`ANNOTATED_BOXES`) lifted from ``rec`` with ``cfg.lift`` and the poses
+    ``rec`` carries -> ``(Observations, LiftReport | None)``.
+
+    Read from :func:`observations_path` when there (report None) unless ``relift``; else lifted
+    and saved there.
+    """
+    from egograph.geometry.lift import lift_recording
+
+    path = observations_path(rec, source, cfg)
+    if path.exists() and not relift:
+        return Observations.load(path), None
+    dets, n_instances = source_detections(rec, source, cfg)
+    obs, report = lift_recording(rec, dets, cfg.lift, progress=False, n_instances=n_instances)
+    obs.save(path)
+    return obs, report

@@ -1,0 +1,202 @@
+"""The landmark chain of one instance: a Point3 landmark per time chunk, joined by motion-break factors.
+
+The instance's timeline is cut on a fixed grid of ``chunk_s`` seconds; each non-empty chunk
+k gets a landmark ``L_k`` held by the chunk's detection factors
+(:mod:`egograph.track.detection_factor`); consecutive landmarks are joined by a switchable
+zero-motion factor (:mod:`egograph.track.switchable`), its DCS closed form (``switches: dcs``)
+or, after the DCS pre-pass, a plain zero-motion factor. The offline solve is batch
+Levenberg-Marquardt, in local windows around the candidate breaks, with the AHAT alias
+re-chosen per observation between rounds. World frame, metres.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from typing import Sequence
+
+import gtsam
+import numpy as np
+
+from egograph.track.config import GraphConfig
+from egograph.track.detection_factor import add_detection_factors
+from egograph.track.switchable import (
+    dcs_between,
+    dcs_phi,
+    dcs_switch_value,
+    switch_clipped,
+    switch_prior,
+    switchable_between,
+)
+
+
+def L(k: int) -> int:
+    """GTSAM key of chunk k's landmark (Point3, world, metres)."""
+    return gtsam.symbol("l", k)
+
+
+def S(k: int) -> int:
+    """GTSAM key of the switch (a 1-vector) on the break between chunks k-1 and k."""
+    return gtsam.symbol("s", k)
+
+
+def chunk_index(t_s: np.ndarray, chunk_s: float) -> np.ndarray:
+    """Chunk id 0..C-1 per observation (times sorted, seconds) on a fixed grid from the first."""
+    grid = np.floor((t_s - t_s[0]) / chunk_s).astype(np.int64)
+    _, idx = np.unique(grid, return_inverse=True)
+    return idx.astype(np.int64)
+
+
+def _chunk_medians(world: np.ndarray, chunk: np.ndarray, n: int) -> np.ndarray:
+    out = np.empty((n, 3))
+    order = np.argsort(chunk, kind="stable")
+    bounds = np.searchsorted(chunk[order], np.arange(n + 1))
+    for k in range(n):
+        out[k] = np.median(world[order[bounds[k]:bounds[k + 1]]], axis=0)
+    return out
+
+
+def add_break_factors(graph: gtsam.NonlinearFactorGraph, values: gtsam.Values, k: int, cfg: GraphConfig,
+                      kind: str | None = None) -> None:
+    """Motion-break factor between landmarks k-1 and k (and the switch variable, if any).
+    ``kind``: 'switchable' | 'dcs' | 'still' (a plain Gaussian zero-motion factor); default cfg.switches."""
+    kind = kind or cfg.switches
+    if kind == "switchable":
+        graph.add(switchable_between(L(k - 1), L(k), S(k), cfg.still_sigma_m))
+        graph.add(switch_prior(S(k), cfg.switch_sigma))
+        values.insert(S(k), np.array([1.0]))
+    elif kind == "dcs":
+        graph.add(dcs_between(L(k - 1), L(k), cfg.still_sigma_m, dcs_phi(cfg.switch_sigma)))
+    elif kind == "still":
+        graph.add(gtsam.BetweenFactorPoint3(L(k - 1), L(k), gtsam.Point3(0, 0, 0),
+                                            gtsam.noiseModel.Isotropic.Sigma(3, cfg.still_sigma_m)))
+    else:
+        raise ValueError(f"unknown switches {kind!r}: 'switchable' or 'dcs'")
+
+
+def _instance_graph(world: np.ndarray, cov: np.ndarray, chunk: np.ndarray, init: np.ndarray, cfg: GraphConfig,
+                    kinds: Sequence[str] | None = None) -> tuple[gtsam.NonlinearFactorGraph, gtsam.Values]:
+    """One instance's graph: a landmark per chunk (initial ``init``), break factors between
+    consecutive ones (``kinds[k-1]`` per boundary, default cfg.switches), detection factors."""
+    graph = gtsam.NonlinearFactorGraph()
+    values = gtsam.Values()
+    for k, p in enumerate(init):
+        values.insert(L(k), gtsam.Point3(*p))
+        if k:
+            add_break_factors(graph, values, k, cfg, None if kinds is None else kinds[k - 1])
+    add_detection_factors(graph, np.array([L(int(c)) for c in chunk]), world, cov, cfg.noise)
+    return graph, values
+
+
+def solve_lm(graph: gtsam.NonlinearFactorGraph, values: gtsam.Values, max_iterations: int) -> gtsam.Values:
+    params = gtsam.LevenbergMarquardtParams()
+    params.setMaxIterations(max_iterations)
+    params.setRelativeErrorTol(1e-6)
+    params.setAbsoluteErrorTol(1e-9)
+    return gtsam.LevenbergMarquardtOptimizer(graph, values, params).optimize()
+
+
+def _switch_values(result: gtsam.Values | None, landmarks: np.ndarray, cfg: GraphConfig) -> np.ndarray:
+    """Effective switch (0-1) per chunk boundary k-1 -> k, index k-1."""
+    n = len(landmarks)
+    if cfg.switches == "switchable":
+        return np.array([switch_clipped(result, S(k)) for k in range(1, n)])
+    phi = dcs_phi(cfg.switch_sigma)
+    return np.array([dcs_switch_value(landmarks[k - 1], landmarks[k], cfg.still_sigma_m, phi) for k in range(1, n)])
+
+
+def _landmarks_of(result: gtsam.Values, n: int) -> np.ndarray:
+    return np.array([np.asarray(result.atPoint3(L(k))) for k in range(n)]).reshape(n, 3)
+
+
+def _nearest_candidates(candidates: np.ndarray, target: np.ndarray) -> np.ndarray:
+    """Per row, the alias candidate (NaN-padded (M, K, 3)) nearest ``target`` (M, 3)."""
+    d = np.linalg.norm(candidates - target[:, None, :], axis=2)
+    d = np.where(np.isfinite(d), d, np.inf)
+    best = np.argmin(d, axis=1)
+    return candidates[np.arange(len(candidates)), best]
+
+
+def solve_instance_offline(world, cov, candidates, chunk, cfg: GraphConfig):
+    """An instance's chain solved offline, ``alias_rounds`` times re-choosing each observation's
+    alias candidate nearest its landmark: (world per observation, landmarks per chunk, switches)."""
+    n = int(chunk.max()) + 1
+    init = _chunk_medians(world, chunk, n)
+    for round_ in range(max(0, cfg.alias_rounds) + 1):
+        landmarks, switches = _solve_chain(world, cov, chunk, init, cfg)
+        if round_ == cfg.alias_rounds or candidates is None:
+            break
+        better = _nearest_candidates(candidates, landmarks[chunk])
+        if np.allclose(better, world, equal_nan=True):
+            break
+        world = better
+        init = landmarks
+    return world, landmarks, switches
+
+
+def _solve_chain(world, cov, chunk, init, cfg: GraphConfig) -> tuple[np.ndarray, np.ndarray]:
+    """Landmarks and effective switches of one chain. With switchable factors and
+    ``dcs_prepass``, a DCS solve (all C++) first finds the boundaries that are clearly still
+    (implied switch >= ``prepass_keep``); those get a plain zero-motion factor, every other
+    boundary an explicit switch, and the switchable solve starts from the DCS landmarks."""
+    n = len(init)
+    if cfg.switches == "switchable" and cfg.dcs_prepass and n > 1:
+        graph, values = _instance_graph(world, cov, chunk, init, cfg, ["dcs"] * (n - 1))
+        dcs = dataclasses.replace(cfg, switches="dcs")
+        landmarks = _landmarks_of(solve_lm(graph, values, cfg.max_iterations), n)
+        implied = _switch_values(None, landmarks, dcs)
+        sw = np.ones(n - 1)
+        # Each candidate break is decided in a local window of the chain (a switch only couples
+        # its neighbours), which keeps the Python CustomFactors in small graphs: GTSAM's cost
+        # per CustomFactor call grows with the size of the graph it sits in.
+        windows = _candidate_windows(np.flatnonzero(implied < cfg.prepass_keep) + 1, n, cfg.prepass_window)
+        for lo, hi, own_lo, own_hi in _window_pieces(windows, cfg.prepass_max_window, cfg.prepass_window):
+            rows = (chunk >= lo) & (chunk < hi)
+            kinds = ["still" if implied[k - 1] >= cfg.prepass_keep else "switchable" for k in range(lo + 1, hi)]
+            graph, values = _instance_graph(world[rows], cov[rows], chunk[rows] - lo, landmarks[lo:hi], cfg, kinds)
+            result = solve_lm(graph, values, cfg.max_iterations)
+            landmarks[own_lo:own_hi] = _landmarks_of(result, hi - lo)[own_lo - lo:own_hi - lo]
+            for k in range(max(own_lo, lo + 1), own_hi):
+                if kinds[k - lo - 1] == "switchable":
+                    sw[k - 1] = switch_clipped(result, S(k - lo))
+        return landmarks, sw
+    graph, values = _instance_graph(world, cov, chunk, init, cfg)
+    result = solve_lm(graph, values, cfg.max_iterations)
+    landmarks = _landmarks_of(result, n)
+    return landmarks, _switch_values(result, landmarks, cfg)
+
+
+def _candidate_windows(boundaries: np.ndarray, n: int, pad: int) -> list[tuple[int, int]]:
+    """Chunk ranges [lo, hi) reaching ``pad`` chunks either side of each candidate boundary
+    (boundary k joins chunks k-1 and k), overlapping ranges merged."""
+    out: list[list[int]] = []
+    for k in boundaries:
+        lo, hi = max(0, int(k) - pad), min(n, int(k) + pad)
+        if out and lo <= out[-1][1]:
+            out[-1][1] = max(out[-1][1], hi)
+        else:
+            out.append([lo, hi])
+    return [(lo, hi) for lo, hi in out]
+
+
+def _window_pieces(windows: list[tuple[int, int]], max_len: int, pad: int) -> list[tuple[int, int, int, int]]:
+    """Each window [lo, hi) cut into overlapping pieces of at most ``max_len`` chunks: (piece_lo,
+    piece_hi, own_lo, own_hi). A piece decides only the chunks [own_lo, own_hi) and the
+    boundaries in (own_lo, own_hi) (also own_lo, except at the window's start), at least ``pad``
+    chunks from a cut, so each decision sees ``pad`` chunks of context either side as in an
+    uncut window; the owned ranges partition the window."""
+    out = []
+    step = max(1, max_len - 2 * pad)
+    for lo, hi in windows:
+        if max_len <= 2 * pad or hi - lo <= max_len:
+            out.append((lo, hi, lo, hi))
+            continue
+        s = lo
+        while True:
+            e = min(s + max_len, hi)
+            own_lo = lo if s == lo else s + pad
+            own_hi = hi if e == hi else e - pad
+            out.append((s, e, own_lo, own_hi))
+            if e == hi:
+                break
+            s += step
+    return out

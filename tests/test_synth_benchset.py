@@ -1,0 +1,138 @@
+"""The cached benchmark set and its one observation cache (egograph.synth.benchset)."""
+
+from __future__ import annotations
+
+import hashlib
+import json
+
+import numpy as np
+import pytest
+from conftest import TINY
+
+from egograph.core.config import to_dict
+from egograph.io.poses import read_pose_json, write_pose_json
+from egograph.io.recording import Recording
+from egograph.poses.refine import apply_poses
+from egograph.steps.settings import EgographConfig
+from egograph.synth.benchset import (
+    ANNOTATED_BOXES,
+    ORACLE,
+    benchmark_set,
+    cached_observations,
+    observations_key,
+    observations_path,
+)
+
+FRAMES = 20
+
+
+@pytest.fixture(scope="module")
+def tiny_set(tmp_path_factory):
+    """Two 20-frame recordings of the tiny config, cached in a temporary folder."""
+    cache = tmp_path_factory.mktemp("bench")
+    return cache, benchmark_set([1, 2], FRAMES, config=TINY, cache=cache, progress=False)
+
+
+def legacy_key(root, cfg) -> str:
+    """The key the benchmarks wrote before the cache moved into the package (reported poses)."""
+    meta = json.loads((root / "recording.json").read_text())
+    parts = [meta["config"]["detections"], meta.get("frontend_revision", 1), cfg.lift.result_knobs(), to_dict(cfg.io)]
+    return hashlib.sha256(json.dumps(parts, sort_keys=True).encode()).hexdigest()[:12]
+
+
+def refined_copy(root, folder, shift_m: float = 0.01):
+    """A poses folder as ``egograph refine`` writes it: the reported poses shifted in x (metres)."""
+    seq = next(p for p in root.iterdir() if (p / "pv_pose.json").is_file())
+    folder.mkdir(exist_ok=True)
+    for name in ("pv_pose.json", "depth_ahat_pose.json"):
+        ts, poses, _ = read_pose_json(seq / name)
+        poses = poses.copy()
+        poses[:, 3, 0] += shift_m  # row vectors: translation in the last row
+        write_pose_json(folder / name, ts, poses)
+    return folder
+
+
+def test_the_set_is_cached(tiny_set, capsys):
+    cache, roots = tiny_set
+    assert [r.name for r in roots] == ["seed1", "seed2"] and all((r / "recording.json").is_file() for r in roots)
+    before = [(r / "recording.json").stat().st_mtime_ns for r in roots]
+    assert benchmark_set([1, 2], FRAMES, config=TINY, cache=cache, progress=False) == roots
+    assert "generating" not in capsys.readouterr().out
+    assert [(r / "recording.json").stat().st_mtime_ns for r in roots] == before
+
+
+def test_key_with_reported_poses_is_the_earlier_one(tiny_set):
+    _, roots = tiny_set
+    cfg = EgographConfig()
+    for root in roots:
+        rec = Recording.open(root)
+        assert observations_key(rec, "svoe", cfg) == legacy_key(root, cfg)
+        assert observations_path(rec, "svoe", cfg).name == f"svoe_robust_{legacy_key(root, cfg)}.npz"
+
+
+@pytest.mark.parametrize("source", ["svoe", ORACLE, ANNOTATED_BOXES])
+def test_key_changes_with_the_poses(tiny_set, tmp_path, source):
+    _, roots = tiny_set
+    cfg = EgographConfig()
+    rec = Recording.open(roots[0])
+    key = observations_key(rec, source, cfg)
+    assert observations_key(Recording.open(roots[0]), source, cfg) == key  # same poses, same key
+    refined = apply_poses(rec, refined_copy(roots[0], tmp_path / "refined"))
+    other = apply_poses(rec, refined_copy(roots[0], tmp_path / "other", 0.02))
+    keys = {key, observations_key(refined, source, cfg), observations_key(other, source, cfg)}
+    assert len(keys) == 3
+    again = apply_poses(rec, tmp_path / "refined")  # the same refined poses again: the same key
+    assert observations_key(again, source, cfg) == observations_key(refined, source, cfg)
+
+
+def test_key_changes_with_the_depth_poses_alone(tiny_set):
+    _, roots = tiny_set
+    cfg = EgographConfig()
+    rec = Recording.open(roots[0])
+    key = observations_key(rec, "mvpe", cfg)
+    rec.depth_poses[0, 3, 0] += 0.01  # edited in place
+    assert observations_key(rec, "mvpe", cfg) != key
+
+
+def test_key_changes_with_the_lift_config_but_not_decode_threads(tiny_set):
+    _, roots = tiny_set
+    rec = Recording.open(roots[0])
+    cfg = EgographConfig()
+    key = observations_key(rec, "svoe", cfg)
+    cfg.lift.decode_threads = 1
+    assert observations_key(rec, "svoe", cfg) == key
+    cfg.lift.shrink = 0.4
+    assert observations_key(rec, "svoe", cfg) != key
+    cfg = EgographConfig()
+    cfg.lift.mode = "reference"
+    assert observations_key(rec, "svoe", cfg) != key
+    assert observations_path(rec, "svoe", cfg).name.startswith("svoe_reference_")
+    cfg = EgographConfig()
+    cfg.io.box_format = "xywh"
+    assert observations_key(rec, "svoe", cfg) != key
+
+
+def test_sources_have_their_own_keys(tiny_set):
+    _, roots = tiny_set
+    rec = Recording.open(roots[0])
+    cfg = EgographConfig()
+    assert observations_key(rec, "svoe", cfg) == observations_key(rec, "mvpe", cfg)  # the name tells them apart
+    assert observations_key(rec, ORACLE, cfg) == observations_key(rec, ANNOTATED_BOXES, cfg)
+    assert observations_key(rec, ORACLE, cfg) != observations_key(rec, "svoe", cfg)  # no front-end config
+    names = {observations_path(rec, s, cfg).name.split("_")[0] for s in ("svoe", "mvpe", ORACLE, ANNOTATED_BOXES)}
+    assert names == {"svoe", "mvpe", "oracle", "boxes"}
+
+
+def test_cached_observations_lift_once(tiny_set):
+    _, roots = tiny_set
+    rec = Recording.open(roots[1])
+    cfg = EgographConfig()
+    path = observations_path(rec, "mvpe", cfg)
+    assert not path.exists()
+    obs, report = cached_observations(rec, "mvpe", cfg)
+    assert report is not None and path.is_file() and len(obs) > 0
+    again, report = cached_observations(rec, "mvpe", cfg)
+    assert report is None
+    np.testing.assert_array_equal(again.world, obs.world)
+    _, report = cached_observations(rec, "mvpe", cfg, relift=True)
+    assert report is not None
