@@ -5,6 +5,8 @@ from __future__ import annotations
 
 import json
 import os
+import re
+import shutil
 import stat
 import subprocess
 import sys
@@ -86,3 +88,123 @@ def test_a_failed_folder_leaves_the_old_folder(tmp_path):
             raise Boom
     assert (target / "f.txt").read_text() == "good"
     assert sorted(p.name for p in Path(tmp_path).iterdir()) == ["d"]
+
+
+# ------------------------------------------------------------------ replacing a folder
+
+# A writer that SIGKILLs itself at one moment of replacing the folder ARGV[1] ("old" -> "new").
+KILLED = """
+import os, shutil, signal, sys
+from pathlib import Path
+from egograph.io import atomic
+moment = sys.argv[2]
+if moment != "exchange":
+    atomic.exchange = lambda a, b: False
+replace, rmtree = os.replace, shutil.rmtree
+def replace_then_die(a, b):  # the fallback's second rename never happens
+    if Path(a).name.endswith(".tmp"):
+        os.kill(os.getpid(), signal.SIGKILL)
+    replace(a, b)
+def die(*args, **kw):  # before the swapped-out old folder is removed
+    os.kill(os.getpid(), signal.SIGKILL)
+if moment == "between renames":
+    os.replace = replace_then_die
+else:
+    shutil.rmtree = die
+with atomic.atomic_dir(sys.argv[1]) as tmp:
+    (tmp / "f.txt").write_text("new")
+"""
+
+
+def folder_text(path: Path) -> dict[str, str]:
+    return {p.name: p.read_text() for p in path.iterdir()}
+
+
+def test_replacing_a_folder_is_one_exchange(tmp_path, monkeypatch):
+    from egograph.io import atomic
+
+    (tmp_path / "a").mkdir()
+    (tmp_path / "b").mkdir()
+    (tmp_path / "a" / "in_a").touch()
+    if not atomic.exchange(tmp_path / "a", tmp_path / "b"):
+        pytest.skip("renameat2(RENAME_EXCHANGE) is not available here")
+    assert [p.name for p in (tmp_path / "b").iterdir()] == ["in_a"]
+    shutil.rmtree(tmp_path / "a")
+    shutil.rmtree(tmp_path / "b")
+    calls = []
+    real = atomic.exchange
+    monkeypatch.setattr(atomic, "exchange", lambda a, b: calls.append((Path(a).name, Path(b).name)) or real(a, b))
+    target = tmp_path / "d"
+    for content in ("old", "new"):
+        with atomic_dir(target) as tmp:
+            (tmp / "f.txt").write_text(content)
+    assert len(calls) == 1 and calls[0][1] == "d" and calls[0][0].startswith(f".d.{os.getpid()}.")
+    assert folder_text(target) == {"f.txt": "new"}
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["d"]
+
+
+def test_without_the_exchange_the_folder_is_replaced_by_two_renames(tmp_path, monkeypatch):
+    from egograph.io import atomic
+
+    monkeypatch.setattr(atomic, "exchange", lambda a, b: False)
+    target = tmp_path / "d"
+    for content in ("old", "new"):
+        with atomic_dir(target) as tmp:
+            (tmp / "f.txt").write_text(content)
+    assert folder_text(target) == {"f.txt": "new"}
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["d"]
+
+
+TMP = "<the writer's temporary>"
+AFTER_KILL = {  # moment -> what is left: name -> content of its f.txt (None: the lock file)
+    "exchange": {TMP: "old", ".d.lock": None, "d": "new"},
+    "between renames": {TMP: "new", ".d.lock": None, ".d.old": "old"},
+    "after the renames": {".d.lock": None, ".d.old": "old", "d": "new"},
+}
+
+
+@pytest.mark.parametrize("moment", list(AFTER_KILL))
+def test_a_kill_while_replacing_loses_neither_folder(tmp_path, moment):
+    """Killed after the exchange, NAME is the new folder; killed between the fallback's renames, NAME
+    is missing and ``.NAME.old`` whole, and the next run puts it back first. Either way the next run
+    removes what is left, even when it fails itself."""
+    target = tmp_path / "d"
+    with atomic_dir(target) as tmp:
+        (tmp / "f.txt").write_text("old")
+    assert subprocess.run([sys.executable, "-c", KILLED, str(target), moment]).returncode == -9
+    left = {}
+    for p in tmp_path.iterdir():
+        name = TMP if re.fullmatch(r"\.d\.[0-9]+\.\w+\.tmp", p.name) else p.name  # named after its writer
+        left[name] = (p / "f.txt").read_text() if p.is_dir() else None
+    assert left == AFTER_KILL[moment]
+    with pytest.warns(UserWarning, match="cleaned up after an interrupted run"):
+        with pytest.raises(Boom):
+            with atomic_dir(target) as tmp:
+                raise Boom
+    assert folder_text(target) == {"f.txt": "old" if moment == "between renames" else "new"}
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["d"]
+
+
+@pytest.mark.parametrize("kind", ["file", "link", "dangling link"])
+def test_a_folder_replacing_a_file_or_a_link_leaves_nothing_behind(tmp_path, kind):
+    target = tmp_path / "d"
+    if kind == "file":
+        target.write_text("a file")
+    else:
+        (tmp_path / "elsewhere").mkdir()
+        target.symlink_to(tmp_path / ("elsewhere" if kind == "link" else "nowhere"))
+    with atomic_dir(target) as tmp:
+        (tmp / "f.txt").write_text("new")
+    assert not target.is_symlink() and folder_text(target) == {"f.txt": "new"}
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["d"] + (["elsewhere"] if kind != "file" else [])
+
+
+def test_a_nested_write_of_the_same_output_keeps_the_outer_temporary(tmp_path):
+    target = tmp_path / "d"
+    with atomic_dir(target) as outer:
+        (outer / "f.txt").write_text("outer")
+        with atomic_dir(target) as inner:  # same thread: re-enters the lock; must not see `outer` as a leftover
+            (inner / "f.txt").write_text("inner")
+        assert (outer / "f.txt").read_text() == "outer"
+    assert folder_text(target) == {"f.txt": "outer"}
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["d"]

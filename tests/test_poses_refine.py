@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+import re
 
 import numpy as np
 import pytest
@@ -145,6 +146,78 @@ def test_cli_refine_writes_outputs_and_apply_poses(jump_rec, tmp_path, capsys):
     # never onto the input
     assert main(["refine", str(jump_rec), "--out", str(sequence_dir(jump_rec)), "--quiet"]) == 2
     assert "refusing" in capsys.readouterr().err
+
+
+def _without_wall_clock(path):
+    """A refine output file's text without its wall-clock times: JSON keys ending in "seconds" and
+    the rows of report.md's "| stage | seconds |" table."""
+    def drop(o):
+        if isinstance(o, dict):
+            return {k: drop(v) for k, v in o.items() if not k.endswith("seconds")}
+        return [drop(v) for v in o] if isinstance(o, list) else o
+
+    text = path.read_text()
+    if path.suffix == ".json":
+        return json.dumps(drop(json.loads(text)), indent=1)
+    return "\n".join(line for line in text.splitlines() if not re.fullmatch(r"\| \w+ \| \d+\.\d\d \|", line))
+
+
+@pytest.mark.slow
+def test_cli_refine_is_byte_identical_run_to_run(jump_rec, tmp_path):
+    """Two runs of ``egograph refine`` write the same bytes: poses, TUM files, config and run record,
+    and the reports but for their wall-clock seconds. (Open3D's point-to-plane estimation summed in a
+    TBB parallel reduction and changed the 15th digit from run to run.)"""
+    out, first = tmp_path / "refined", tmp_path / "first"
+    args = ["refine", str(jump_rec), "--out", str(out), "--quiet", "--set", "refine.mesh_stride=20"]
+    assert main(args) == 0
+    out.rename(first)                            # the same --out both times: the run records name it
+    assert main(args) == 0
+    names = sorted(p.name for p in first.iterdir())
+    assert names == sorted(p.name for p in out.iterdir())
+    assert {"pv_pose.json", "depth_ahat_pose.json", "egograph.json", "report.json"} <= set(names)
+    for name in names:
+        a, b = first / name, out / name
+        if name in ("report.json", "report.md"):
+            assert _without_wall_clock(a) == _without_wall_clock(b), name
+            assert a.read_text() != _without_wall_clock(a)           # (something was left out)
+        else:
+            assert a.read_bytes() == b.read_bytes(), name
+
+
+def test_point_to_plane_step_matches_open3d():
+    """The fixed-order point-to-plane step is Open3D's TransformationEstimationPointToPlane(TukeyLoss)
+    to rounding, the same bits every time, and like it (Eigen's LDLT) moves a lone axis-aligned plane
+    only along its normal (the free directions have exactly zero pivots)."""
+    import open3d as o3d
+
+    from egograph.poses.mesh_icp import point_to_plane_step
+
+    reg = o3d.pipelines.registration
+
+    def open3d_step(src, dst, normals, k):
+        s_pc = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(src))
+        t_pc = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(dst))
+        t_pc.normals = o3d.utility.Vector3dVector(normals)
+        corr = o3d.utility.Vector2iVector(np.repeat(np.arange(len(src), dtype=np.int32)[:, None], 2, axis=1))
+        return np.asarray(reg.TransformationEstimationPointToPlane(reg.TukeyLoss(k=k)).compute_transformation(
+            s_pc, t_pc, corr))
+
+    rng = np.random.default_rng(3)
+    n = 4000
+    normals = np.repeat(np.eye(3), [n // 2, n // 4, n - n // 2 - n // 4], axis=0) + rng.normal(0, 0.05, (n, 3))
+    normals /= np.linalg.norm(normals, axis=1)[:, None]
+    dst = rng.uniform(-1, 1, (n, 3)) + [0.5, 0.2, 2.0]
+    src = dst + normals * rng.normal(0.01, 0.02, (n, 1)) + rng.normal(0, 0.003, (n, 3))
+    for k in (0.15, 0.025):
+        step = point_to_plane_step(src, dst, normals, k)
+        assert np.abs(step - open3d_step(src, dst, normals, k)).max() < 1e-12
+        assert np.array_equal(step, point_to_plane_step(src, dst, normals, k))
+        assert np.abs(step[:3, 3]).max() > 1e-3          # a real step, not the identity
+    floor = np.c_[rng.uniform(-1, 1, n), np.full(n, -1.2), rng.uniform(1, 3, n)]
+    up = np.tile([0.0, 1.0, 0.0], (n, 1))
+    step = point_to_plane_step(floor + [0.01, 0.02, -0.03], floor, up, 0.1)
+    assert np.abs(step - open3d_step(floor + [0.01, 0.02, -0.03], floor, up, 0.1)).max() < 1e-12
+    assert np.allclose(step[:3, 3], [0.0, -0.02, 0.0], atol=1e-12) and np.allclose(step[:3, :3], np.eye(3))
 
 
 def test_apply_poses_rejects_other_timestamps(jump_rec, tmp_path):

@@ -3,6 +3,8 @@
 from __future__ import annotations
 
 import dataclasses
+import json
+import re
 
 import numpy as np
 import pytest
@@ -134,6 +136,43 @@ def test_cli_track_joint_poses_writes_results_intervals_and_poses(tiny_rec, tmp_
     assert np.array_equal(ts, rec.timestamps) and ok.all()
     assert (tmp_path / "res.poses" / "pv_pose.tum").is_file()
     assert "joint poses:" in capsys.readouterr().out
+
+
+def _without_wall_clock(path):
+    """A result file's text without its wall-clock times: JSON keys ending in "seconds" and the rows
+    of report.md's "| stage | seconds |" table."""
+    def drop(o):
+        if isinstance(o, dict):
+            return {k: drop(v) for k, v in o.items() if not k.endswith("seconds")}
+        return [drop(v) for v in o] if isinstance(o, list) else o
+
+    text = path.read_text()
+    if path.suffix == ".json":
+        return json.dumps(drop(json.loads(text)), indent=1)
+    return "\n".join(line for line in text.splitlines() if not re.fullmatch(r"\| \w+ \| \d+\.\d\d \|", line))
+
+
+@pytest.mark.slow
+def test_cli_track_joint_poses_with_mesh_is_byte_identical_run_to_run(tiny_rec, tmp_path):
+    """Two runs of ``egograph track --joint-poses`` (mesh ICP on) write the same bytes but for the
+    wall-clock seconds in the reports (the mesh ICP's Open3D estimation used to change the last digits)."""
+    out = tmp_path / "res"
+    args = ["track", str(tiny_rec), "--tracker", "graph", "--detections", "mvpe", "--out", str(out),
+            "--joint-poses", "--quiet", "--set", "refine.mesh_stride=20"]
+    assert main(args) == 0
+    out.rename(tmp_path / "first")               # the same --out both times: the run records name it
+    (tmp_path / "res.poses").rename(tmp_path / "first.poses")
+    assert main(args) == 0
+    for a_dir, b_dir in ((tmp_path / "first", out), (tmp_path / "first.poses", tmp_path / "res.poses")):
+        names = sorted(p.name for p in a_dir.iterdir())
+        assert names == sorted(p.name for p in b_dir.iterdir())
+        assert {"intervals.json", "egograph.json"} <= set(names) or {"pv_pose.json", "report.json"} <= set(names)
+        for name in names:
+            a, b = a_dir / name, b_dir / name
+            if name in ("intervals.json", "report.json", "report.md"):
+                assert _without_wall_clock(a) == _without_wall_clock(b), name
+            else:
+                assert a.read_bytes() == b.read_bytes(), name
 
 
 def test_cli_joint_poses_needs_the_offline_graph(tiny_rec, tmp_path, capsys):

@@ -144,7 +144,7 @@ def test_the_wheel_installs_and_runs_outside_the_checkout(tmp_path):
     assert Path(where).parent == purelib / "egograph"
 
     egograph = venv / "bin" / "egograph"
-    _run([egograph, "synth", "rec", "--config", "synth/tiny", "--seed", "1", "--quiet", "--frames", "15",
+    _run([egograph, "synth", "rec", "--config", "synth/tiny", "--seed", "1", "--quiet", "--frames", "60",
           "--set", "pv.rgb=false", "--set", "mvpe_photo_size=32"], work, env)
     assert "tiny_seq" in _run([egograph, "info", "rec"], work, env)
     _run([egograph, "track", "rec", "--tracker", "memory", "--detections", "svoe", "--out", "results", "--quiet"],

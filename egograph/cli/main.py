@@ -265,7 +265,7 @@ def cmd_eval(args) -> int:
 
     cfg = pipeline_config(args)
     rec = _open(args, cfg)
-    report = evaluate(rec, args.results)
+    report = evaluate(rec, args.results, strict=args.strict)
     con = _console()
     if args.format in ("table", "yaml"):
         report.print(con, per_instance=args.per_instance)
@@ -273,8 +273,6 @@ def cmd_eval(args) -> int:
         from egograph.eval.report import render_report
 
         print(render_report(report, args.format))
-    if report.frames_without_file:
-        con.print(f"[yellow]{report.frames_without_file} frames had no results file (counted as no prediction)")
     if args.json:
         report.write_json(args.json)
     if args.markdown:
@@ -476,6 +474,9 @@ def build_parser() -> argparse.ArgumentParser:
     s.add_argument("--csv", type=Path, help="write the metrics as CSV")
     s.add_argument("--plot", type=Path, help="PNG of precision/recall against threshold")
     s.add_argument("--per-instance", action="store_true", help="also a table per instance")
+    s.add_argument("--strict", action="store_true",
+                   help="refuse results with PV frames without a file, lines for unknown instances, two lines for "
+                        "one instance in a frame, or files for no PV frame (default: count them and warn)")
     s.add_argument("--format", choices=("table", "md", "csv", "json", "yaml"), default="table",
                    help="how to print: a table sized to the terminal, or every column as md, csv or json "
                         "(yaml: with --show-config)")
@@ -529,6 +530,7 @@ def _config_only(argv: list[str]) -> int | None:
 def main(argv: list[str] | None = None) -> int:
     argv = list(sys.argv[1:] if argv is None else argv)
     warnings.simplefilter("default")
+    warnings.formatwarning = _one_line_warning
     try:
         shown = _config_only(argv)
         if shown is not None:
@@ -537,12 +539,50 @@ def main(argv: list[str] | None = None) -> int:
             args = build_parser().parse_args(argv)
         except SystemExit as exc:  # usage errors (argparse printed them), --help, --version
             return int(exc.code or 0) if not isinstance(exc.code, str) else 2
-        return int(args.func(args) or 0)
+        out = getattr(args, "out", None)
+        if out is None:
+            return int(args.func(args) or 0)
+        from egograph.io.atomic import output_lock
+
+        with output_lock(out):  # a second run on the same --out fails at its start, not after its work
+            return int(args.func(args) or 0)
     except EgographError as exc:
         print(f"egograph: error: {exc}", file=sys.stderr)
         return 2
     except KeyboardInterrupt:
         return 130
+    except Exception as exc:  # a bug, not bad input: one line here, the traceback in a log file
+        log = _write_crash_log(argv, locals().get("args"))
+        print(f"egograph: internal error: {type(exc).__name__}: {' '.join(str(exc).split())[:300]} "
+              f"(full traceback in {log}; please report it)", file=sys.stderr)
+        return 1
+
+
+def _one_line_warning(message, category, filename, lineno, line=None) -> str:
+    """Warnings as one line a person reads (``egograph: warning: ...``), without the source line."""
+    return f"egograph: warning: {message}\n"
+
+
+def _write_crash_log(argv: list[str], args) -> Path:
+    """The traceback of an unexpected exception, written beside the run's output (``--out``'s
+    folder when it exists) or in the temporary folder; returns its path."""
+    import tempfile
+    import traceback
+
+    from egograph.steps.outputs import command_line
+
+    out = getattr(args, "out", None) if args is not None else None
+    folder = Path(out).parent if out else Path(tempfile.gettempdir())
+    if not folder.is_dir():
+        folder = Path(tempfile.gettempdir())
+    log = folder / f"egograph-error-{getattr(args, 'command', None) or 'run'}.log"
+    text = f"egograph {__version__}\n{command_line(['egograph', *argv])}\n\n{traceback.format_exc()}"
+    try:
+        log.write_text(text)
+    except OSError:
+        log = Path(tempfile.gettempdir()) / log.name
+        log.write_text(text)
+    return log
 
 
 if __name__ == "__main__":

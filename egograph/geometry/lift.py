@@ -25,11 +25,15 @@ metres; PV image pixels (1280x720, continuous coordinates, pixel ``i`` covers
 ``[i, i+1)``). Points are row vectors multiplied on the right (``p_out = p_in @ M``); every
 chain comes from :mod:`egograph.geometry.hl2ss`.
 
-Bad inputs never stop the lift: each detection that cannot be lifted is counted under a
-reason in :class:`LiftReport`. Detections at a frame of the recording, for a known
-instance, stay in the output as unlifted rows (``world`` NaN, ``chosen`` -1); detections at
-an unknown timestamp, for an unknown instance, or that are not detections at all, are
-dropped (they have no frame / no instance to file them under).
+Partly bad input does not stop the lift: each detection that cannot be lifted is counted
+under a reason in :class:`LiftReport`, as are the detection files that were skipped (read with
+:func:`~egograph.io.detections.read_detection_dir`) and the PV frames without a usable pose.
+Detections at a frame of the recording, for a known instance, stay in the output as unlifted
+rows (``world`` NaN, ``chosen`` -1); detections at an unknown timestamp, for an unknown
+instance, or that are not detections at all, are dropped (they have no frame / no instance to
+file them under). Input with nothing usable raises :class:`~egograph.core.errors.InputError`
+naming the file at fault: rig extrinsics that are not rigid transforms (checked first), or a lift
+that lifted no detection at all (missing ``depth_ahat_pose.json``, no depth, no detections...).
 """
 
 from __future__ import annotations
@@ -42,10 +46,11 @@ from typing import Mapping, Sequence
 import numpy as np
 from tqdm import tqdm
 
+from egograph.core.errors import InputError
 from egograph.core.types import Box, Detection, Prediction
 from egograph.geometry.chains import FrameChains, frame_chains
 from egograph.geometry.config import LiftConfig
-from egograph.geometry.hl2ss import transform_points
+from egograph.geometry.hl2ss import pose_validity, transform_points
 from egograph.geometry.observations import Observations
 from egograph.geometry.prefetch import prefetched
 from egograph.geometry.reference_lift import ReferenceSetup, reference_frame_map, reference_pick, reference_setup
@@ -70,6 +75,13 @@ SKIP_REASONS = {
 }
 
 
+FILE_REASONS = {
+    "misnamed": "detection file not named <ts>.txt",
+    "not_pv_frame": "detection file for a timestamp that is not a PV frame",
+}
+"""Why detection files were skipped (not read): the ``files_skipped`` keys of :class:`LiftReport`."""
+
+
 @dataclass
 class SkipExample:
     reason: str
@@ -80,7 +92,8 @@ class SkipExample:
 
 @dataclass
 class LiftReport:
-    """What the lift did: detections seen and lifted, skips per reason with a few examples."""
+    """What the lift did: detections seen and lifted, skips per reason with a few examples, the
+    detection files skipped (not named for a PV frame) and the PV frames without a usable pose."""
 
     mode: str
     n_detections: int = 0
@@ -92,6 +105,12 @@ class LiftReport:
     seconds: float = 0.0                   # whole lift, wall clock
     setup_seconds: float = 0.0             # of which per-recording set-up (rays, mesh ray-casting scene)
     examples_per_reason: int = 3
+    source: str | None = None              # the detections folder, when read from one
+    n_files: int = 0                       # detection files in it (read or skipped)
+    files_skipped: dict[str, list[str]] = field(default_factory=dict)  # FILE_REASONS key -> file names
+    n_pv_frames: int = 0                   # PV frames of the recording
+    frames_without_pose: dict[str, int] = field(default_factory=dict)  # pose file -> PV frames without a
+    #                                        valid pose in it, for the poses the lift needs (only when > 0)
 
     def skip(self, reason: str, ts: int | None, instance: int | None, detail: str = "", count: int = 1) -> None:
         assert reason in SKIP_REASONS, reason
@@ -114,6 +133,16 @@ class LiftReport:
                 if ex.reason == reason:
                     what = f"ts {ex.timestamp}" + (f", instance {ex.instance}" if ex.instance is not None else "")
                     lines.append(f"            e.g. {what}" + (f" ({ex.detail})" if ex.detail else ""))
+        if self.files_skipped:
+            lines.append(f"  detection files: {sum(map(len, self.files_skipped.values()))} of {self.n_files} "
+                         f"in {self.source} skipped")
+            for reason, names in sorted(self.files_skipped.items()):
+                eg = ", ".join(names[:self.examples_per_reason]) + (", ..." if len(names) > self.examples_per_reason
+                                                                    else "")
+                lines.append(f"  {len(names):6d}  {reason}: {FILE_REASONS[reason]} (e.g. {eg})")
+        for name, n in self.frames_without_pose.items():
+            lines.append(f"  PV frames without a valid pose in {name}: {n} of {self.n_pv_frames} (their "
+                         f"detections count as invalid_pose)")
         lines += [f"  note: {n}" for n in self.notes]
         return "\n".join(lines)
 
@@ -142,7 +171,7 @@ def _context(rec, cfg: LiftConfig, report: LiftReport) -> _Context:
 
 def _frame_matrices(ctx: _Context, i: int) -> FrameChains | None:
     """The frame's chains, or None when a pose it needs is invalid (posed registration: robust mode only)."""
-    return frame_chains(ctx.rec, i, posed=ctx.cfg.mode == "robust" and ctx.cfg.registration == "posed")
+    return frame_chains(ctx.rec, i, posed=_posed(ctx.cfg))
 
 
 @dataclass
@@ -246,7 +275,6 @@ def _labels_count(rec, report: LiftReport) -> int | None:
     ann = getattr(rec, "annotation_dir", None)
     if ann is None or not (Path(ann) / "labels.csv").is_file():
         return None
-    from egograph.core.errors import InputError
     from egograph.io.annotations import read_labels
 
     try:
@@ -254,6 +282,72 @@ def _labels_count(rec, report: LiftReport) -> int | None:
     except InputError as exc:
         report.notes.append(f"instance ids not checked: {exc}")
         return None
+
+
+def check_rig(rec) -> None:
+    """InputError naming the calibration file when a rig extrinsics matrix is not a rigid transform
+    (all zeros, NaN, scaled...): every chain goes through them, so no detection could be lifted."""
+    calib = Path(getattr(rec, "calibration_dir", None) or ".")
+    for sensor, folder in (("ahat", "rm_depth_ahat"), ("pv", "personal_video")):
+        m = np.asarray(getattr(rec, sensor).extrinsics, dtype=np.float64)
+        if m.shape != (4, 4) or not pose_validity(m):
+            raise InputError(calib / folder / "extrinsics.bin",
+                             "not a rigid transform (row-vector 4x4 rotation and translation, last column "
+                             "0 0 0 1): no detection can be lifted")
+
+
+def _frames_without_pose(rec, cfg: LiftConfig) -> dict[str, int]:
+    """PV frames without a valid pose the lift needs, per pose file (when any): the depth pose,
+    and under posed registration (robust mode) the PV pose too."""
+    bad = {"depth_ahat_pose.json": int((~np.asarray(rec.depth_valid, bool)).sum())}
+    if _posed(cfg):
+        bad["pv_pose.json"] = int((~np.asarray(rec.pv_valid, bool)).sum())
+    return {name: n for name, n in bad.items() if n}
+
+
+def _posed(cfg: LiftConfig) -> bool:
+    return cfg.mode == "robust" and cfg.registration == "posed"
+
+
+def _note_inputs(rec, detections, cfg: LiftConfig, report: LiftReport) -> None:
+    """The detection files skipped (when ``detections`` was read from a folder) and the PV frames
+    without a pose, into ``report``."""
+    scan = getattr(detections, "scan", None)
+    if scan is not None:
+        report.source = str(scan.folder)
+        report.n_files = scan.n_files
+        for reason, files in (("misnamed", scan.misnamed), ("not_pv_frame", scan.not_pv_frame)):
+            if files:
+                report.files_skipped[reason] = sorted(f.name for f in files)
+    report.n_pv_frames = len(rec.timestamps)
+    report.frames_without_pose = _frames_without_pose(rec, cfg)
+
+
+def _nothing_lifted(rec, report: LiftReport) -> InputError:
+    """The error for a lift that lifted no detection, naming the input most likely at fault."""
+    seq = Path(getattr(rec, "seq_dir", None) or ".")
+    source = Path(report.source) if report.source else seq
+    if not report.n_detections:
+        where = f" in {report.n_files} files" if report.source else ""
+        return InputError(source, f"no detections{where}: nothing to lift")
+    counts = ", ".join(f"{n} {reason}" for reason, n in sorted(report.skipped.items(), key=lambda kv: -kv[1]))
+    what = f"none of {report.n_detections} detections lifted ({counts})"
+    top = max(report.skipped, key=report.skipped.get) if report.skipped else ""
+    if top == "invalid_pose":
+        pose_file = seq / "depth_ahat_pose.json"
+        if not pose_file.is_file():
+            return InputError(pose_file, f"missing: no AHAT pose for any PV frame; {what}")
+        if "depth_ahat_pose.json" not in report.frames_without_pose:  # posed registration: the PV poses
+            pose_file = seq / "pv_pose.json"
+        n = report.frames_without_pose.get(pose_file.name, 0)
+        return InputError(pose_file, f"no valid pose at the frames with detections ({n} of {report.n_pv_frames} "
+                                     f"PV frames without one); {what}")
+    if top == "unknown_instance":
+        ann = getattr(rec, "annotation_dir", None)
+        return InputError(Path(ann) / "labels.csv" if ann else source, f"every instance id is beyond the labels; {what}")
+    if top in ("no_depth_frame", "no_depth_pixels", "no_dominant_cluster"):
+        return InputError(seq / "depth_ahat", f"no usable depth in the detections' boxes; {what}")
+    return InputError(source, what)
 
 
 def _usable_box(det, pv_shape: tuple[int, int], ts: int, report: LiftReport) -> np.ndarray | None:
@@ -309,11 +403,14 @@ def lift_recording(rec, detections: dict[int, list[Detection]], cfg: LiftConfig,
     :func:`~egograph.io.detections.read_detection_dir` returns). ``n_instances`` bounds
     the instance ids; None reads it from the recording's ``labels.csv`` when it has
     annotations (no bound otherwise). Rows come out in frame order, detections in file
-    order within a frame. Never raises on bad data: see the module doc and the report.
+    order within a frame. Partly bad data is counted in the report; InputError when nothing
+    can be lifted (see the module doc).
     """
     cfg.check()
+    check_rig(rec)
     t0 = time.perf_counter()
     report = LiftReport(mode=cfg.mode)
+    _note_inputs(rec, detections, cfg, report)
     if n_instances is None:
         n_instances = _labels_count(rec, report)
     frames = _frames_to_lift(rec, detections, n_instances, report)
@@ -345,6 +442,8 @@ def lift_recording(rec, detections: dict[int, list[Detection]], cfg: LiftConfig,
             else:
                 _lift_one(ctx, state, ts, i, d, box, rows, report)
     report.seconds = time.perf_counter() - t0
+    if not report.n_lifted:
+        raise _nothing_lifted(rec, report)
     return rows.build(), report
 
 

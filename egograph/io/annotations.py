@@ -16,6 +16,10 @@ as ``x_min y_min x_max y_max``. Because some users read the box columns as
 ``x y w h``, every box reader and writer takes ``box_format`` ("xyxy" or
 "xywh"); conversion happens at the file boundary only.
 
+Readers refuse, naming file and line, what would be read wrong: a label name given twice, an
+instance id beyond ``labels.csv`` (when the number of labels is known), two centre rows of one
+instance for the same interval, overlapping stationary intervals of one instance.
+
 Writers write single-space separated rows, newline-terminated, through an
 atomic rename, so an existing file is never left half-written.
 """
@@ -171,6 +175,31 @@ def _lines_text(rows: Iterable[Iterable[str]]) -> str:
     return "".join(" ".join(row) + "\n" for row in rows)
 
 
+def _check_overlaps(path: Path, rows: list[tuple[int, int, int, int]], what: str) -> None:
+    """InputError when two intervals of one instance share a tick; ``rows`` are
+    ``(instance, t_start, t_end, lineno)`` (ticks, inclusive). Identical rows are overlaps too:
+    the evaluation would count the frames twice."""
+    last: dict[int, tuple[int, int, int]] = {}
+    for inst, t0, t1, lineno in sorted(rows):
+        prev = last.get(inst)
+        if prev is not None and t0 <= prev[1]:
+            raise InputError(path, f"instance {inst}: {what} [{t0}, {t1}] overlaps [{prev[0]}, {prev[1]}] "
+                                   f"on line {min(lineno, prev[2])}", max(lineno, prev[2]))
+        if prev is None or t1 > prev[1]:
+            last[inst] = (t0, t1, lineno)
+
+
+def _check_duplicates(path: Path, rows: list[tuple[int, int, int, int]], what: str) -> None:
+    """InputError when one instance has two rows for the same interval (the same ``t_start`` and
+    ``t_end``, ticks): a repeated row, or two places for the same time; ``rows`` are
+    ``(instance, t_start, t_end, lineno)``."""
+    seen: dict[tuple[int, int, int], int] = {}
+    for inst, t0, t1, lineno in rows:
+        first = seen.setdefault((inst, t0, t1), lineno)
+        if first != lineno:
+            raise InputError(path, f"instance {inst}: {what} [{t0}, {t1}] also on line {first}", lineno)
+
+
 def _check_limit(path: Path, lineno: int | None, instance: int, num_instances: int | None) -> None:
     if num_instances is not None and instance >= num_instances:
         raise InputError(
@@ -182,12 +211,19 @@ def _check_limit(path: Path, lineno: int | None, instance: int, num_instances: i
 
 
 def read_labels(path: str | Path) -> list[str]:
-    """Instance names; list index = instance id. With commas, the name is the first field."""
+    """Instance names; list index = instance id. With commas, the name is the first field.
+
+    A name given twice is an InputError (two ids for one name: results could not be told apart).
+    """
     labels = []
+    seen: dict[str, int] = {}
     for lineno, line in iter_lines(path):
         name = line.split(",", 1)[0].strip()
         if not name:
             raise InputError(path, "empty instance name", lineno)
+        if name in seen:
+            raise InputError(path, f"instance name {name!r} also on line {seen[name]}", lineno)
+        seen[name] = lineno
         labels.append(name)
     return labels
 
@@ -214,10 +250,13 @@ _CENTER_LAYOUT = "t_start t_end instance_id x y z location_id"
 def read_centers(path: str | Path, num_instances: int | None = None) -> list[CenterAnnotation]:
     """Rows of ``3d_center_annot.txt``, sorted by (instance, t_start).
 
-    If ``num_instances`` is given, ids must be below it (InputError otherwise).
+    If ``num_instances`` is given, ids must be below it (InputError otherwise). Two rows of one
+    instance for the same interval (a repeated row, or two places at once) are an InputError;
+    intervals of one instance that overlap otherwise are kept (the protocol counts each).
     """
     path = Path(path)
     out = []
+    lines = []
     for n, tok in iter_rows(path, 7, layout=_CENTER_LAYOUT):
         t0 = parse_int(tok[0], path, n, "t_start")
         t1 = parse_int(tok[1], path, n, "t_end")
@@ -227,6 +266,8 @@ def read_centers(path: str | Path, num_instances: int | None = None) -> list[Cen
         rec = make_record(path, n, CenterAnnotation, t0, t1, inst, xyz, loc)
         _check_limit(path, n, rec.instance, num_instances)
         out.append(rec)
+        lines.append((rec.instance, rec.t_start, rec.t_end, n))
+    _check_duplicates(path, lines, "interval")
     out.sort(key=lambda c: (c.instance, c.t_start))
     return out
 
@@ -250,9 +291,11 @@ def write_centers(path: str | Path, centers: Iterable[CenterAnnotation]) -> None
 
 
 def read_motion_states(path: str | Path, num_instances: int | None = None) -> list[MotionInterval]:
-    """Stationary intervals (inclusive ticks), sorted by (instance, t_start)."""
+    """Stationary intervals (inclusive ticks), sorted by (instance, t_start); two of one instance
+    that overlap are an InputError."""
     path = Path(path)
     out = []
+    lines = []
     for n, tok in iter_rows(path, 3, layout="instance_id t_start t_end"):
         inst = parse_int(tok[0], path, n, "instance_id")
         t0 = parse_int(tok[1], path, n, "t_start")
@@ -260,6 +303,8 @@ def read_motion_states(path: str | Path, num_instances: int | None = None) -> li
         rec = make_record(path, n, MotionInterval, inst, t0, t1)
         _check_limit(path, n, rec.instance, num_instances)
         out.append(rec)
+        lines.append((rec.instance, rec.t_start, rec.t_end, n))
+    _check_overlaps(path, lines, "stationary interval")
     out.sort(key=lambda m: (m.instance, m.t_start))
     return out
 

@@ -10,6 +10,15 @@ Detection rows (boxes in PV image pixels, 1280x720)::
     instance x1 y1 x2 y2                         5 columns, score = 1.0
     instance x1 y1 x2 y2 det_conf similarity     7 columns (reference code), score = similarity
 
+The score is the matcher's cosine similarity, so any value in [-1, 1] is accepted (the trackers'
+``score_threshold`` knobs have the same range); ``det_conf`` is a detector confidence in [0, 1].
+Values outside are refused naming file and line.
+
+Read against a recording's PV timestamps, a detection folder must hold at least one file named
+for a PV frame, else :class:`InputError` (wrong folder, ``frame_<ts>.txt`` names, timestamps of
+another recording). Files that are not named ``<ts>.txt`` or name no PV frame are counted in the
+result's :attr:`DetectionFrames.scan`, warned about, and skipped.
+
 Result rows (predicted instance centre, world frame, metres)::
 
     instance x y z score
@@ -21,6 +30,8 @@ predicted.
 
 from __future__ import annotations
 
+import warnings
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Callable, Iterable, Mapping, Sequence, TypeVar
 
@@ -40,6 +51,78 @@ resolved configuration and the run record, see :mod:`egograph.steps.outputs`); r
 
 # --------------------------------------------------------------------------- per-frame folders
 
+SCORE_RANGE = (-1.0, 1.0)
+"""Accepted matcher scores (cosine similarity)."""
+DET_CONF_RANGE = (0.0, 1.0)
+"""Accepted detector confidences (the 7-column format's ``det_conf``)."""
+EXAMPLES = 3
+"""File names quoted in messages about a folder."""
+
+
+@dataclass
+class FrameDirScan:
+    """What a per-frame folder holds against a recording's PV timestamps (100 ns ticks).
+
+    ``matched``: PV timestamp -> its file; ``not_pv_frame``: files named ``<ts>.txt`` whose ts is
+    no PV frame; ``misnamed``: files not named ``<integer>.txt`` (metadata files and hidden files
+    are not counted); ``missing``: PV timestamps without a file, in numeric order.
+    """
+
+    folder: Path
+    matched: dict[int, Path] = field(default_factory=dict)
+    not_pv_frame: list[Path] = field(default_factory=list)
+    misnamed: list[Path] = field(default_factory=list)
+    missing: list[int] = field(default_factory=list)
+
+    @property
+    def n_files(self) -> int:
+        return len(self.matched) + len(self.not_pv_frame) + len(self.misnamed)
+
+    @property
+    def ignored(self) -> list[Path]:
+        """Files that were not read (no PV frame to file them under), in name order."""
+        return sorted(self.not_pv_frame + self.misnamed)
+
+    def ignored_text(self) -> str:
+        """``"2 not named <ts>.txt (e.g. a.txt), 1 for no PV frame (e.g. 5.txt)"``, or ``""``."""
+        parts = []
+        for files, what in ((self.misnamed, "not named <ts>.txt"), (self.not_pv_frame, "for no PV frame")):
+            if files:
+                parts.append(f"{len(files)} {what} (e.g. {', '.join(_names(files))})")
+        return ", ".join(parts)
+
+
+def _names(files: Sequence[Path], n: int = EXAMPLES) -> list[str]:
+    names = sorted(f.name for f in files)
+    return names[:n] + (["..."] if len(names) > n else [])
+
+
+def scan_frame_dir(path: str | Path, timestamps: Iterable[int]) -> FrameDirScan:
+    """Sort a per-frame folder's files against the PV ``timestamps`` (see :class:`FrameDirScan`).
+
+    ``0100.txt`` names frame 100 as ``100.txt`` does; two files for one frame are an InputError.
+    """
+    path = Path(path)
+    stamps = sorted({as_int(t, "timestamp") for t in timestamps})
+    known = set(stamps)
+    scan = FrameDirScan(path)
+    for file in sorted(listed_files(path, "per-frame")):
+        if file.name in METADATA_FILES:
+            continue
+        try:
+            ts = int_stem(file, "ts")
+        except InputError:
+            scan.misnamed.append(file)
+            continue
+        if ts not in known:
+            scan.not_pv_frame.append(file)
+        elif ts in scan.matched:  # e.g. "100.txt" and "0100.txt"
+            raise InputError(file, f"timestamp {ts} also given by {scan.matched[ts].name}")
+        else:
+            scan.matched[ts] = file
+    scan.missing = [ts for ts in stamps if ts not in scan.matched]
+    return scan
+
 
 def _read_frame_dir(
     path: str | Path,
@@ -52,14 +135,13 @@ def _read_frame_dir(
     other files are not read; without, every file must be named ``<integer>.txt``.
     """
     path = Path(path)
-    files = [f for f in listed_files(path, "per-frame") if f.name not in METADATA_FILES]
     if timestamps is not None:
-        names = {f.name for f in files}
+        scan = scan_frame_dir(path, timestamps)
         out: dict[int, list[T]] = {}
-        for ts in sorted({as_int(t, "timestamp") for t in timestamps}):
-            name = f"{ts}.txt"
-            out[ts] = read_one(path / name) if name in names else []
+        for ts in sorted([*scan.matched, *scan.missing]):
+            out[ts] = read_one(scan.matched[ts]) if ts in scan.matched else []
         return out
+    files = [f for f in listed_files(path, "per-frame") if f.name not in METADATA_FILES]
     found: dict[int, Path] = {}
     for file in files:
         ts = int_stem(file, "ts")
@@ -82,14 +164,21 @@ def read_detection_file(path: str | Path, box_format: str = "xyxy") -> list[Dete
         inst = parse_int(tok[0], path, n, "instance")
         box = parse_box(tok[1:5], path, n, box_format)
         if len(tok) == 7:
-            parse_float(tok[5], path, n, "det_conf")  # validated, then dropped
-            score = parse_float(tok[6], path, n, "similarity")
+            _in_range(parse_float(tok[5], path, n, "det_conf"), DET_CONF_RANGE, path, n, "det_conf")  # then dropped
+            score = _in_range(parse_float(tok[6], path, n, "similarity"), SCORE_RANGE, path, n, "similarity")
         elif len(tok) == 6:
-            score = parse_float(tok[5], path, n, "score")
+            score = _in_range(parse_float(tok[5], path, n, "score"), SCORE_RANGE, path, n, "score")
         else:
             score = 1.0
         out.append(make_record(path, n, Detection, inst, box, score))
     return out
+
+
+def _in_range(value: float, bounds: tuple[float, float], path: Path, lineno: int, what: str) -> float:
+    lo, hi = bounds
+    if not lo <= value <= hi:
+        raise InputError(path, f"{what} {value:g} outside [{lo:g}, {hi:g}]", lineno)
+    return value
 
 
 def _detections_text(dets: Iterable[Detection], box_format: str) -> str:
@@ -105,15 +194,53 @@ def write_detection_file(path: str | Path, dets: Iterable[Detection], box_format
     atomic_write_text(path, _detections_text(dets, box_format))
 
 
+class DetectionFrames(dict):
+    """``ts -> detections`` (numeric ts order), plus ``scan``: the folder's files against the PV
+    timestamps (:class:`FrameDirScan`; None when read without timestamps)."""
+
+    def __init__(self, *args, scan: FrameDirScan | None = None, **kwargs):
+        super().__init__(*args, **kwargs)
+        self.scan = scan
+
+
 def read_detection_dir(
     path: str | Path, timestamps: Iterable[int] | None = None, box_format: str = "xyxy"
-) -> dict[int, list[Detection]]:
+) -> DetectionFrames:
     """``ts -> detections`` for a folder of ``<ts>.txt`` files, in numeric ts order.
 
-    With ``timestamps``, every given timestamp is a key (missing file -> []).
+    With ``timestamps`` (a recording's PV frames), every given timestamp is a key (missing file
+    -> []); InputError when the folder has no file, or none named for a PV frame; files that
+    name no PV frame are skipped with a warning and listed in the result's ``scan``. Without,
+    every file must be named ``<integer>.txt`` and there must be at least one.
     """
     check_box_format(box_format)
-    return _read_frame_dir(path, timestamps, lambda p: read_detection_file(p, box_format))
+    path = Path(path)
+    read_one = lambda p: read_detection_file(p, box_format)  # noqa: E731
+    if timestamps is None:
+        out = DetectionFrames(_read_frame_dir(path, None, read_one))
+        if not out:
+            raise InputError(path, "no detection files (expected one <ts>.txt per PV frame)")
+        return out
+    stamps = sorted({as_int(t, "timestamp") for t in timestamps})
+    scan = scan_frame_dir(path, stamps)
+    check_detection_scan(scan, stamps)
+    if scan.ignored:
+        warnings.warn(f"{path}: {len(scan.ignored)} of {scan.n_files} detection files skipped: "
+                      f"{scan.ignored_text()}", stacklevel=2)
+    return DetectionFrames({ts: read_one(scan.matched[ts]) if ts in scan.matched else [] for ts in stamps},
+                           scan=scan)
+
+
+def check_detection_scan(scan: FrameDirScan, timestamps: Sequence[int]) -> None:
+    """InputError when a detection folder has nothing for any PV frame (``timestamps``, sorted)."""
+    if scan.matched:
+        return
+    if not scan.n_files:
+        raise InputError(scan.folder, "no detection files (expected one <ts>.txt per PV frame)")
+    eg = f" (e.g. {timestamps[0]}.txt)" if len(timestamps) else ""
+    raise InputError(scan.folder, f"no detection file names a PV frame: expected <ts>.txt with ts a PV "
+                                  f"timestamp{eg}; found {scan.n_files} files: "
+                                  f"{', '.join(_names(scan.ignored))}")
 
 
 def write_detection_dir(
@@ -127,16 +254,21 @@ def write_detection_dir(
 # --------------------------------------------------------------------------- tracker results
 
 
-def read_results_file(path: str | Path) -> list[Prediction]:
-    """Predictions of one frame (``instance x y z score``, world frame, metres), in file order."""
+def read_results_lines(path: str | Path) -> list[tuple[int, Prediction]]:
+    """``(line number, prediction)`` of one frame's results file, in file order (1-based lines)."""
     path = Path(path)
     out = []
     for n, tok in iter_rows(path, 5, layout="instance x y z score"):
         inst = parse_int(tok[0], path, n, "instance")
         xyz = tuple(parse_float(t, path, n, a) for t, a in zip(tok[1:4], "xyz"))
         score = parse_float(tok[4], path, n, "score")
-        out.append(make_record(path, n, Prediction, inst, xyz, score))
+        out.append((n, make_record(path, n, Prediction, inst, xyz, score)))
     return out
+
+
+def read_results_file(path: str | Path) -> list[Prediction]:
+    """Predictions of one frame (``instance x y z score``, world frame, metres), in file order."""
+    return [p for _, p in read_results_lines(path)]
 
 
 def _results_text(preds: Iterable[Prediction]) -> str:

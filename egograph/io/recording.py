@@ -49,6 +49,25 @@ def mesh_raycasting_scene(mesh):
     return scene
 
 
+def check_depth_png(path: str | Path, img: np.ndarray, shape: tuple[int, int]) -> np.ndarray:
+    """A decoded AHAT depth PNG as (H, W) uint16 raw depth, or InputError naming the file.
+
+    The calibration's ray table fixes the size (``shape``, rows x columns: 512 x 512); the
+    sensor's raw values need 16 bits. An 8-bit image (a preview, a normalised export) or one of
+    another size is not AHAT depth: reading it as depth would give wrong points, not missing ones.
+    """
+    if img.ndim != 2:
+        raise InputError(path, f"not an AHAT depth image: {img.shape[2] if img.ndim == 3 else img.ndim} "
+                               f"channels (expected one channel, 16-bit {shape[1]}x{shape[0]})")
+    if img.dtype != np.uint16:
+        raise InputError(path, f"not an AHAT depth image: {img.dtype} pixels (expected 16-bit raw depth, "
+                               f"{shape[1]}x{shape[0]})")
+    if img.shape != tuple(shape):
+        raise InputError(path, f"not an AHAT depth image: {img.shape[1]}x{img.shape[0]} pixels (the calibration "
+                               f"gives {shape[1]}x{shape[0]})")
+    return img
+
+
 def is_sequence_dir(path: Path) -> bool:
     return (path / "pv_pose.json").is_file()
 
@@ -205,16 +224,17 @@ class Recording:
         return cv2.cvtColor(img, cv2.COLOR_BGR2RGB)
 
     def depth_raw(self, i: int) -> np.ndarray | None:
-        """AHAT raw depth of frame i (512, 512) uint16, or None ("no depth") when missing/unreadable."""
+        """AHAT raw depth of frame i (512, 512) uint16, or None ("no depth") when missing or not a
+        decodable image (warned); InputError when it decodes to anything but 16-bit, one channel,
+        the calibration's size (:func:`check_depth_png`)."""
         p = self.depth_path(i)
         if not p.is_file():
             return None
         img = cv2.imread(str(p), cv2.IMREAD_UNCHANGED)
-        if img is None or img.ndim != 2 or img.shape != self.ahat.shape:
-            warnings.warn(f"{p}: unreadable or not a {self.ahat.shape} depth image, treated as no depth",
-                          stacklevel=2)
+        if img is None:
+            warnings.warn(f"{p}: unreadable depth image, treated as no depth", stacklevel=2)
             return None
-        return img.astype(np.uint16, copy=False)
+        return check_depth_png(p, img, self.ahat.shape)
 
     def detect_depth_factor(self, samples: int = 5) -> float:
         """Guess the raw AHAT unit from data: wrapped ranges ≤ ~1.06 m read ≤ ~264 in 4 mm units.

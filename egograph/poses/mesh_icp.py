@@ -1,9 +1,12 @@
 """Frame-to-mesh point-to-plane ICP (Open3D) as absolute pose constraints.
 
 On every ``mesh_stride``-th frame the (mesh-unwrapped) AHAT points are registered to the
-HoloLens scene mesh, coarse to fine, starting from the current pose estimate. Each step is
-Open3D's point-to-plane estimation (Tukey kernel) on correspondences to the exact closest
-mesh points (``RaycastingScene.compute_closest_points``, with the triangle normals).
+HoloLens scene mesh, coarse to fine, starting from the current pose estimate. Each step is a
+point-to-plane Gauss-Newton step (Tukey kernel, Open3D's formulation) on correspondences to the
+exact closest mesh points (``RaycastingScene.compute_closest_points``, with the triangle normals).
+The step's normal equations are summed here in a fixed order (:func:`point_to_plane_step`):
+Open3D's ``TransformationEstimationPointToPlane`` sums them in a TBB parallel reduction whose
+split depends on thread timing, which made repeated runs differ in the last bits.
 
 A result becomes a constraint when the overlap is good (fitness, point-to-plane inlier RMSE)
 and it did not move implausibly far. Its noise model is the point-to-plane information
@@ -67,12 +70,92 @@ def point_to_plane_hessian(points_cam: np.ndarray, normals_cam: np.ndarray) -> n
     return j.T @ j / max(len(j), 1)
 
 
+def tukey_weights(r: np.ndarray, k: float) -> np.ndarray:
+    """Open3D's ``TukeyLoss(k).Weight``: ``(1 - (r/k)²)²`` for ``|r| <= k``, else 0."""
+    e = np.abs(r)
+    return np.where(e > k, 0.0, (1.0 - (e / k) ** 2) ** 2)
+
+
+def euler_zyx(x: np.ndarray) -> np.ndarray:
+    """Column 4x4 of a 6-vector ``[rx, ry, rz, tx, ty, tz]`` as Open3D reads an ICP step
+    (``TransformVector6dToMatrix4d``): ``R = Rz(rz) Ry(ry) Rx(rx)``."""
+    cx, cy, cz = np.cos(x[:3])
+    sx, sy, sz = np.sin(x[:3])
+    T = np.eye(4)
+    T[:3, :3] = [[cz * cy, cz * sy * sx - sz * cx, cz * sy * cx + sz * sx],
+                 [sz * cy, sz * sy * sx + cz * cx, sz * sy * cx - cz * sx],
+                 [-sy, cy * sx, cy * cx]]
+    T[:3, 3] = x[3:]
+    return T
+
+
+def ldlt_solve(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """``x`` with ``a x = b`` for a small symmetric positive semi-definite ``a``, by Eigen's LDLT with
+    diagonal pivoting (what Open3D's ``SolveLinearSystemPSD`` calls), zero pivots included: their
+    components come out 0 (a direction the system does not constrain stays put), as in Eigen.
+    Plain Python floats: for a 6x6 system far cheaper than numpy calls on tiny arrays."""
+    m = np.asarray(a, dtype=np.float64).tolist()   # its lower triangle is factored in place
+    n = len(m)
+    swaps = list(range(n))
+    for k in range(n):
+        j = max(range(k, n), key=lambda i: (abs(m[i][i]), -i))     # the first largest diagonal entry
+        swaps[k] = j
+        if j != k:                            # symmetric swap of k and j within the lower triangle
+            m[k][:k], m[j][:k] = m[j][:k], m[k][:k]
+            for i in range(j + 1, n):
+                m[i][k], m[i][j] = m[i][j], m[i][k]
+            m[k][k], m[j][j] = m[j][j], m[k][k]
+            for i in range(k + 1, j):
+                m[i][k], m[j][i] = m[j][i], m[i][k]
+        if k > 0:
+            tmp = [m[i][i] * m[k][i] for i in range(k)]
+            m[k][k] -= sum(m[k][i] * tmp[i] for i in range(k))
+            for r in range(k + 1, n):
+                m[r][k] -= sum(m[r][i] * tmp[i] for i in range(k))
+        if m[k][k] != 0:
+            for r in range(k + 1, n):
+                m[r][k] /= m[k][k]
+        elif k == 0:                          # an all-zero diagonal: nothing constrained
+            return np.zeros(n)
+    x = np.asarray(b, dtype=np.float64).tolist()
+    for k in range(n):
+        x[k], x[swaps[k]] = x[swaps[k]], x[k]
+    for i in range(n):
+        x[i] -= sum(m[i][c] * x[c] for c in range(i))
+    tiny = np.finfo(np.float64).tiny
+    x = [x[i] / m[i][i] if abs(m[i][i]) > tiny else 0.0 for i in range(n)]
+    for i in reversed(range(n)):
+        x[i] -= sum(m[r][i] * x[r] for r in range(i + 1, n))
+    for k in reversed(range(n)):
+        x[k], x[swaps[k]] = x[swaps[k]], x[k]
+    return np.array(x)
+
+
+def point_to_plane_step(src: np.ndarray, dst: np.ndarray, normals: np.ndarray, k: float) -> np.ndarray:
+    """One robust point-to-plane Gauss-Newton step (column 4x4, world frame) moving the points
+    ``src`` onto the planes (``dst``, ``normals``) of their correspondences, Tukey kernel of width k.
+
+    The same step as Open3D's ``TransformationEstimationPointToPlane(TukeyLoss(k))``
+    (``J = [src × n, n]``, ``r = (src - dst)·n``, ``x = -(Σ w JJᵀ)⁻¹ Σ w J r`` by LDLT, Euler ZYX),
+    but deterministic: the sums run in a fixed order (numpy's einsum loop, no BLAS or TBB
+    threads), where Open3D's parallel reduction changes the rounding from run to run. Identity
+    when the solution is not finite.
+    """
+    r = np.einsum("ij,ij->i", src - dst, normals)
+    (sx, sy, sz), (nx, ny, nz) = src.T, normals.T
+    jt = np.empty((6, len(r)))                                       # Jᵀ, rows contiguous: [src × n; n]
+    jt[0], jt[1], jt[2] = sy * nz - sz * ny, sz * nx - sx * nz, sx * ny - sy * nx
+    jt[3:] = normals.T
+    jwt = jt * tukey_weights(r, k)
+    x = ldlt_solve(np.einsum("in,jn->ij", jwt, jt), -np.einsum("in,n->i", jwt, r))
+    return euler_zyx(x) if np.isfinite(x).all() else np.eye(4)
+
+
 def register_frame(points_cam: np.ndarray, scene, init_world_cam: np.ndarray, cfg: RefineConfig,
                    iterations: int = 8) -> IcpResult:
     """Point-to-plane ICP of camera-frame points onto the mesh from ``init_world_cam`` (column 4x4)."""
     import open3d as o3d
 
-    reg = o3d.pipelines.registration
     src = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(points_cam)).voxel_down_sample(cfg.mesh_voxel)
     p = np.asarray(src.points)
     T = np.asarray(init_world_cam, dtype=np.float64).copy()
@@ -86,17 +169,12 @@ def register_frame(points_cam: np.ndarray, scene, init_world_cam: np.ndarray, cf
 
     fail = IcpResult(T, 0.0, np.inf, np.zeros((6, 6)))
     for d in cfg.mesh_max_distance:
-        est = reg.TransformationEstimationPointToPlane(reg.TukeyLoss(k=d))
         for _ in range(iterations):
             pw, cp, nr, dist = closest(T)
             sel = np.flatnonzero(dist < d)
             if len(sel) < 6:
                 return fail
-            s_pc = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(pw[sel]))
-            t_pc = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(cp[sel]))
-            t_pc.normals = o3d.utility.Vector3dVector(nr[sel])
-            corr = o3d.utility.Vector2iVector(np.repeat(np.arange(len(sel), dtype=np.int32)[:, None], 2, axis=1))
-            dT = np.asarray(est.compute_transformation(s_pc, t_pc, corr))
+            dT = point_to_plane_step(pw[sel], cp[sel], nr[sel], d)
             T = dT @ T
             if within(dT, 1e-4, np.degrees(1e-4)):
                 break

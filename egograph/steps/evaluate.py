@@ -5,17 +5,25 @@ Results are a :class:`~egograph.core.types.TrackResult` in memory or a results f
 When the results carry the tracker's own position intervals (the graph trackers'), those are
 scored as they are; otherwise intervals are derived from the per-frame predictions (runs of
 frames at one position, 1 cm tolerance), as for any tracker in the reference format.
+
+A results folder is read against the recording: frames without a result file count as frames
+without predictions, lines for an instance id beyond ``labels.csv`` are ignored, of two lines for
+one instance in one frame the later is used, files that name no PV frame are ignored. Each of
+these is counted and warned about (one warning per kind, naming the first file and line); with
+``strict`` the first of them is an :class:`~egograph.core.errors.InputError` instead.
 """
 
 from __future__ import annotations
 
+import warnings
 from pathlib import Path
 
 import numpy as np
 
+from egograph.core.errors import InputError
 from egograph.core.types import TrackResult
 from egograph.eval.intervals import PredictedInterval
-from egograph.eval.loader import FramePredictions, evaluate_loaded, load_sequence
+from egograph.eval.loader import IGNORED_REASONS, FramePredictions, evaluate_loaded, load_sequence
 from egograph.eval.report import EvalReport
 from egograph.io.recording import Recording
 from egograph.steps.recording import require_annotations
@@ -38,8 +46,39 @@ def predicted_intervals(intervals) -> list[PredictedInterval]:
             for iv in intervals]
 
 
-def evaluate(rec: Recording, results: str | Path | TrackResult, name: str | None = None) -> EvalReport:
-    """IT3DEgo metrics of one tracker's results on ``rec`` -> :class:`EvalReport` (one sequence)."""
+def check_predictions(results_dir: str | Path, preds: FramePredictions, strict: bool = False) -> list[str]:
+    """What of a results folder was not used (see the module doc), one line per kind; with
+    ``strict``, InputError for the first frame without a file or the first ignored line/file."""
+    results_dir = Path(results_dir)
+    n_frames = len(preds)
+    lines = []
+    if preds.missing:
+        msg = (f"{len(preds.missing)} of {n_frames} PV frames have no result file (e.g. {preds.missing[0]}.txt); "
+               f"counted as frames without predictions")
+        if strict:
+            raise InputError(results_dir, msg)
+        lines.append(f"{results_dir}: {msg}")
+    counts = preds.ignored_counts()
+    for reason in IGNORED_REASONS:
+        items = [i for i in preds.ignored if i.reason == reason]
+        if not items:
+            continue
+        if strict:
+            raise items[0].error()
+        what = "file" if reason in ("not_pv_frame", "misnamed") else "line"
+        n = counts[reason]
+        lines.append(f"{n} result {what}{'s' if n > 1 else ''} ignored ({IGNORED_REASONS[reason]}); "
+                     f"first: {items[0].error()}")
+    return lines
+
+
+def evaluate(rec: Recording, results: str | Path | TrackResult, name: str | None = None, *,
+             strict: bool = False) -> EvalReport:
+    """IT3DEgo metrics of one tracker's results on ``rec`` -> :class:`EvalReport` (one sequence).
+
+    A results folder's frames without a file and ignored lines are warned about, or with
+    ``strict`` refused (InputError), before anything is scored.
+    """
     ann = require_annotations(rec, "labels.csv, 3d_center_annot.txt")
     if isinstance(results, TrackResult):
         result = results
@@ -49,6 +88,8 @@ def evaluate(rec: Recording, results: str | Path | TrackResult, name: str | None
         from egograph.steps.track import read_result
 
         seq = load_sequence(rec.seq_dir / "pv_pose.json", ann / "3d_center_annot.txt", results, ann / "labels.csv")
+        for line in check_predictions(results, seq.predictions, strict):
+            warnings.warn(line, stacklevel=2)
         result = read_result(results, rec)
     if result.intervals is not None:
         seq.intervals = predicted_intervals(result.intervals)

@@ -32,6 +32,9 @@ def lift(rec: Recording, spec: str | Path, cfg, out: str | Path | None = None, *
 
     With ``out``, the observations are saved there with their provenance; when ``out`` already holds
     observations of the same provenance and ``overwrite`` is False they are read back (report None).
+    Input with nothing to lift (no detection file for any PV frame, rig extrinsics that are not
+    rigid, no detection lifted) raises :class:`~egograph.core.errors.InputError` before anything
+    is written; skipped files and frames are in the report.
     """
     from egograph.geometry.lift import lift_recording
 

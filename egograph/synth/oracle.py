@@ -12,8 +12,8 @@ import numpy as np
 
 from egograph.core.types import Box, Detection, PositionInterval, TrackResult
 from egograph.eval.metrics import gt_intervals
-from egograph.track.segments import fixed_interval_estimate
 from egograph.track.intervals import per_frame_predictions
+from egograph.track.segments import fixed_interval_estimate
 
 MIN_VISIBLE = 0.25
 """Share of an object's silhouette that must be visible for its true box to count (0-1)."""

@@ -26,8 +26,8 @@ from egograph.geometry.observations import Observations
 from egograph.io.annotations import Annotations, CenterAnnotation
 from egograph.track.config import GraphConfig, RegtConfig
 from egograph.track.detection_factor import detection_covariances, mahalanobis2
-from egograph.track.segments import fixed_interval_estimate
 from egograph.track.joint import Stand
+from egograph.track.segments import fixed_interval_estimate
 
 
 @dataclass
