@@ -376,3 +376,45 @@ def test_unknown_and_repeated_result_lines_do_not_count(small_rec, good_outputs,
     with pytest.warns(UserWarning):
         after = evaluate(rec, results).to_json_dict()
     assert after == before
+
+
+# --------------------------------------------------------------------------- inputs that once ended in a traceback
+
+
+def _drop_pv_pose(root: Path, keep: int | None = None) -> None:
+    """Remove one PV frame's pose (``keep``: keep only the first ``keep`` frames of both pose files)."""
+    for name in ("pv_pose.json",) if keep is None else ("pv_pose.json", "depth_ahat_pose.json"):
+        p = seq(root) / name
+        d = json.loads(p.read_text())
+        keys = sorted(d, key=int)
+        d = {k: d[k] for k in keys[:keep]} if keep is not None else {k: v for k, v in d.items() if k != keys[10]}
+        p.write_text(json.dumps(d))
+
+
+@pytest.mark.parametrize("case", ["info_pv_frame_without_pose", "refine_pv_frame_without_pose", "refine_one_frame",
+                                  "alias_zero", "synth_one_frame"])
+def test_former_tracebacks_end_cleanly(small_rec, tmp_path, capsys, case):
+    rec = tmp_path / "rec"
+    shutil.copytree(small_rec, rec)
+    out = tmp_path / "out"
+    if case == "info_pv_frame_without_pose":
+        _drop_pv_pose(rec)
+        code, want = main(["info", str(rec)]), 0
+    elif case == "refine_pv_frame_without_pose":
+        _drop_pv_pose(rec)
+        code, want = main(["refine", str(rec), "--out", str(out), "--quiet", "--set", "refine.mesh=false"]), 0
+    elif case == "refine_one_frame":
+        _drop_pv_pose(rec, keep=1)
+        code, want = main(["refine", str(rec), "--out", str(out), "--quiet", "--set", "refine.mesh=false"]), 2
+    elif case == "alias_zero":
+        np.float32(0).tofile(rec / "calibrations" / "rm_depth_ahat" / "alias.bin")
+        code, want = main(["track", str(rec), "--tracker", "kf", "--out", str(out), "--quiet"]), 2
+    else:
+        code, want = main(["synth", str(out), "--config", "synth/tiny", "--frames", "1", "--quiet"]), 2
+    err = capsys.readouterr().err
+    assert code == want, err
+    assert "Traceback" not in err and "internal error" not in err
+    if want == 2:
+        lines = [line for line in err.splitlines() if line.startswith("egograph: error:")]
+        assert len(lines) == 1 and not out.exists()
+        assert {"refine_one_frame": "pv_pose.json", "alias_zero": "alias.bin", "synth_one_frame": "frames"}[case] in lines[0]

@@ -74,6 +74,14 @@ def _read_matrix(path: Path) -> np.ndarray:
 def read_ahat_calibration(folder: str | Path, shape: tuple[int, int] = AHAT_SHAPE) -> AhatCalibration:
     folder = Path(folder)
     h, w = shape
+    calib = _read_ahat_calibration(folder, h, w)
+    for name, value in (("alias.bin", calib.alias_mm), ("scale.bin", calib.scale)):
+        if not (np.isfinite(value) and value > 0):
+            raise InputError(folder / name, f"must hold a positive number (read {value!r})")
+    return calib
+
+
+def _read_ahat_calibration(folder: Path, h: int, w: int) -> AhatCalibration:
     return AhatCalibration(
         uv2xy=_read_f32(folder / "uv2xy.bin", h * w * 2).reshape(h, w, 2).astype(np.float32),
         extrinsics=_read_matrix(folder / "extrinsics.bin"),

@@ -26,6 +26,10 @@ def refine(rec: Recording, cfg, out: str | Path | None = None, *, overwrite: boo
     from egograph.poses.refine import refine_recording, write_refined
 
     cfg.refine.check()
+    usable = int((rec.pv_valid & rec.depth_valid).sum())
+    if usable < 3:
+        raise InputError(rec.seq_dir / "pv_pose.json", f"refine needs at least 3 frames with valid PV and AHAT poses; "
+                                                       f"found {usable} of {len(rec)}")
     record = outputs.run_record("refine", cfg, {"recording": outputs.recording_digest(rec)})
     record["fingerprint"] = outputs.digest("refine", record["egograph_version"], record["inputs"],
                                            {"refine": record["config"]["refine"]})
@@ -40,12 +44,15 @@ def refine(rec: Recording, cfg, out: str | Path | None = None, *, overwrite: boo
         result = refine_recording(rec, cfg.refine, progress=progress)
     extra = {}
     if rec.synth_gt_dir is not None and (rec.synth_gt_dir / "pv_pose.json").is_file():
+        import numpy as np
+
         from egograph.io.poses import read_pose_json
         from egograph.poses.evaluate import evaluate_trajectory
 
-        _, gt, _ = read_pose_json(rec.synth_gt_dir / "pv_pose.json")
-        extra["eval_reported"] = evaluate_trajectory(rec.pv_poses, gt).as_dict()
-        extra["eval_refined"] = evaluate_trajectory(result.pv_poses, gt).as_dict()
+        gt_ts, gt, _ = read_pose_json(rec.synth_gt_dir / "pv_pose.json")
+        both, i, j = np.intersect1d(rec.timestamps, gt_ts, return_indices=True)  # frames both have
+        extra["eval_reported"] = evaluate_trajectory(rec.pv_poses[i], gt[j]).as_dict()
+        extra["eval_refined"] = evaluate_trajectory(result.pv_poses[i], gt[j]).as_dict()
     if out is not None:
         write_refined(result, out, rec, cfg.refine, extra, run_files=outputs.run_files(record, cfg))
     return result, extra

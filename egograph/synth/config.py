@@ -131,7 +131,7 @@ class DetectionsConfig(Checked):
 @dataclass
 class SynthConfig(Checked):
     sequence: str = knob("synth_seq", "sequence folder name")
-    frames: int = knob(3000, "number of PV frames at 30 fps", min=1)
+    frames: int = knob(3000, "number of PV frames at 30 fps (at least 2: the wearer's motion is differentiated over frames)", min=2)
     fps: float = knob(30.0, "PV frame rate, frames per second", gt=0.0)
     annotation_stride: int = knob(5, "2D boxes are annotated every Nth frame when at least a quarter visible", min=1)
     mvpe_photo_size: int = knob(256, "side of the rendered MVPE enrollment photos, pixels", min=1)
