@@ -3,11 +3,10 @@
 from __future__ import annotations
 
 import json
-import re
 
 import numpy as np
 import pytest
-from conftest import copy_with_pose_error, no_pose_error, sequence_dir, true_poses
+from conftest import copy_with_pose_error, no_pose_error, sequence_dir, true_poses, without_wall_clock
 
 from egograph.cli import main
 from egograph.core.config import load_config
@@ -148,20 +147,6 @@ def test_cli_refine_writes_outputs_and_apply_poses(jump_rec, tmp_path, capsys):
     assert "refusing" in capsys.readouterr().err
 
 
-def _without_wall_clock(path):
-    """A refine output file's text without its wall-clock times: JSON keys ending in "seconds" and
-    the rows of report.md's "| stage | seconds |" table."""
-    def drop(o):
-        if isinstance(o, dict):
-            return {k: drop(v) for k, v in o.items() if not k.endswith("seconds")}
-        return [drop(v) for v in o] if isinstance(o, list) else o
-
-    text = path.read_text()
-    if path.suffix == ".json":
-        return json.dumps(drop(json.loads(text)), indent=1)
-    return "\n".join(line for line in text.splitlines() if not re.fullmatch(r"\| \w+ \| \d+\.\d\d \|", line))
-
-
 @pytest.mark.slow
 def test_cli_refine_is_byte_identical_run_to_run(jump_rec, tmp_path):
     """Two runs of ``egograph refine`` write the same bytes: poses, TUM files, config and run record,
@@ -178,8 +163,8 @@ def test_cli_refine_is_byte_identical_run_to_run(jump_rec, tmp_path):
     for name in names:
         a, b = first / name, out / name
         if name in ("report.json", "report.md"):
-            assert _without_wall_clock(a) == _without_wall_clock(b), name
-            assert a.read_text() != _without_wall_clock(a)           # (something was left out)
+            assert without_wall_clock(a) == without_wall_clock(b), name
+            assert a.read_text() != without_wall_clock(a)           # (something was left out)
         else:
             assert a.read_bytes() == b.read_bytes(), name
 

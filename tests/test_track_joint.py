@@ -3,12 +3,10 @@
 from __future__ import annotations
 
 import dataclasses
-import json
-import re
 
 import numpy as np
 import pytest
-from conftest import copy_with_pose_error, true_poses
+from conftest import copy_with_pose_error, true_poses, without_wall_clock
 
 from egograph.cli import main
 from egograph.core.config import load_config
@@ -138,20 +136,6 @@ def test_cli_track_joint_poses_writes_results_intervals_and_poses(tiny_rec, tmp_
     assert "joint poses:" in capsys.readouterr().out
 
 
-def _without_wall_clock(path):
-    """A result file's text without its wall-clock times: JSON keys ending in "seconds" and the rows
-    of report.md's "| stage | seconds |" table."""
-    def drop(o):
-        if isinstance(o, dict):
-            return {k: drop(v) for k, v in o.items() if not k.endswith("seconds")}
-        return [drop(v) for v in o] if isinstance(o, list) else o
-
-    text = path.read_text()
-    if path.suffix == ".json":
-        return json.dumps(drop(json.loads(text)), indent=1)
-    return "\n".join(line for line in text.splitlines() if not re.fullmatch(r"\| \w+ \| \d+\.\d\d \|", line))
-
-
 @pytest.mark.slow
 def test_cli_track_joint_poses_with_mesh_is_byte_identical_run_to_run(tiny_rec, tmp_path):
     """Two runs of ``egograph track --joint-poses`` (mesh ICP on) write the same bytes but for the
@@ -170,7 +154,7 @@ def test_cli_track_joint_poses_with_mesh_is_byte_identical_run_to_run(tiny_rec, 
         for name in names:
             a, b = a_dir / name, b_dir / name
             if name in ("intervals.json", "report.json", "report.md"):
-                assert _without_wall_clock(a) == _without_wall_clock(b), name
+                assert without_wall_clock(a) == without_wall_clock(b), name
             else:
                 assert a.read_bytes() == b.read_bytes(), name
 

@@ -74,6 +74,22 @@ def _add_overwrite(p: argparse.ArgumentParser) -> None:
                    help="run again even when the output already holds this exact run (same inputs and configuration)")
 
 
+def _evaluate_if_asked(con, args, rec, result) -> None:
+    """``--eval``: the IT3DEgo metrics of the result just made (in memory, intervals as they are)."""
+    if args.eval and rec.annotation_dir is not None:
+        from egograph.steps.evaluate import evaluate
+
+        evaluate(rec, result).print(con)
+
+
+def _write_joint(con, rec, jp, cfg, out: Path) -> None:
+    """Joint mode: write the solved poses in the ``refine`` format and say how far they moved."""
+    from egograph.steps.joint import write_joint_poses
+
+    write_joint_poses(rec, jp, cfg, out)
+    _print_joint(con, jp, out)
+
+
 def _print_joint(con, jp, out: Path) -> None:
     ch = jp.report["change"]
     con.print(f"joint poses: {jp.report['stands']} stands, {jp.report['detection_factors']} detection factors; poses "
@@ -205,15 +221,8 @@ def cmd_track(args) -> int:
     elif args.tracker in INTERVAL_TRACKERS:
         con.print("[yellow]the tracker returned no intervals")
     if jp is not None:
-        from egograph.steps.joint import write_joint_poses
-
-        poses_out = args.poses_out or _sibling(args.out, ".poses")
-        write_joint_poses(rec, jp, cfg, poses_out)
-        _print_joint(con, jp, poses_out)
-    if args.eval and rec.annotation_dir is not None:
-        from egograph.steps.evaluate import evaluate
-
-        evaluate(rec, result).print(con)
+        _write_joint(con, rec, jp, cfg, args.poses_out or _sibling(args.out, ".poses"))
+    _evaluate_if_asked(con, args, rec, result)
     return 0
 
 
@@ -229,11 +238,7 @@ def cmd_regt(args) -> int:
     con.print(f"re-estimated {sum(e.xyz is not None for e in r.estimates)} of {len(r.estimates)} intervals -> "
               f"{args.out}/3d_center_annot.txt, regt.json (covariances), audit.md")
     if r.joint is not None:
-        from egograph.steps.joint import write_joint_poses
-
-        poses_out = args.poses_out or Path(args.out) / "poses"
-        write_joint_poses(rec, r.joint, cfg, poses_out)
-        _print_joint(con, r.joint, poses_out)
+        _write_joint(con, rec, r.joint, cfg, args.poses_out or Path(args.out) / "poses")
     return 0
 
 
@@ -253,10 +258,7 @@ def cmd_smooth(args) -> int:
         write_intervals_json(args.intervals, result.intervals, result.metadata, timestamps=rec.timestamps,
                              labels=labels(rec), sequence=rec.name)
     con.print(f"smoothed {result.metadata.get('n_observations', 'the')} predictions of {args.results} -> {args.out}")
-    if args.eval and rec.annotation_dir is not None:
-        from egograph.steps.evaluate import evaluate
-
-        evaluate(rec, result).print(con)
+    _evaluate_if_asked(con, args, rec, result)
     return 0
 
 
