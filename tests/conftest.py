@@ -2,8 +2,6 @@
 
 from __future__ import annotations
 
-import json
-import re
 import shutil
 from pathlib import Path
 
@@ -72,17 +70,3 @@ def no_pose_error(ts, pv):
 def exact_rec(tiny_rec, tmp_path_factory) -> Path:
     """The tiny recording with the true poses as the reported ones (pose error switched off)."""
     return copy_with_pose_error(tiny_rec, tmp_path_factory.mktemp("exact") / "rec", no_pose_error)
-
-
-def without_wall_clock(path: Path) -> str:
-    """An output file's text without its wall-clock times: JSON keys ending in "seconds" and
-    the rows of report.md's "| stage | seconds |" table."""
-    def drop(o):
-        if isinstance(o, dict):
-            return {k: drop(v) for k, v in o.items() if not k.endswith("seconds")}
-        return [drop(v) for v in o] if isinstance(o, list) else o
-
-    text = path.read_text()
-    if path.suffix == ".json":
-        return json.dumps(drop(json.loads(text)), indent=1)
-    return "\n".join(line for line in text.splitlines() if not re.fullmatch(r"\| \w+ \| \d+\.\d\d \|", line))

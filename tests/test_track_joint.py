@@ -6,7 +6,7 @@ import dataclasses
 
 import numpy as np
 import pytest
-from conftest import copy_with_pose_error, true_poses, without_wall_clock
+from conftest import copy_with_pose_error, true_poses
 
 from egograph.cli import main
 from egograph.core.config import load_config
@@ -153,10 +153,7 @@ def test_cli_track_joint_poses_with_mesh_is_byte_identical_run_to_run(tiny_rec, 
         assert {"intervals.json", "egograph.json"} <= set(names) or {"pv_pose.json", "report.json"} <= set(names)
         for name in names:
             a, b = a_dir / name, b_dir / name
-            if name in ("intervals.json", "report.json", "report.md"):
-                assert without_wall_clock(a) == without_wall_clock(b), name
-            else:
-                assert a.read_bytes() == b.read_bytes(), name
+            assert a.read_bytes() == b.read_bytes(), name  # intervals and reports included: no wall-clock time
 
 
 def test_cli_joint_poses_needs_the_offline_graph(tiny_rec, tmp_path, capsys):

@@ -27,6 +27,7 @@ import numpy as np
 
 from egograph.core.errors import InputError
 from egograph.core.units import TICKS_PER_SECOND
+from egograph.core.values import without_wall_clock
 from egograph.geometry.hl2ss import invert_rigid
 from egograph.poses.config import RefineConfig
 from egograph.poses.constraints import Constraints, pv_columns, sigmas
@@ -374,9 +375,9 @@ def write_refined(result: RefineResult, out: str | Path, rec, cfg: RefineConfig,
                               "whole); choose another --out folder")
     if (out / "pv").is_dir() or (out / "depth_ahat").is_dir() or (out / "calibrations").is_dir():
         raise InputError(out, "looks like a recording; refusing to replace it")
-    report = {"recording": str(rec.seq_dir), "frames": len(rec), "stage_seconds": result.stage_seconds,
-              "factors": result.factor_counts, "change": result.change, "stats": result.stats,
-              "config": to_dict(cfg), **(extra or {})}
+    report = without_wall_clock({"recording": str(rec.seq_dir), "frames": len(rec), "stages": list(result.stage_seconds),
+                                 "factors": result.factor_counts, "change": result.change, "stats": result.stats,
+                                 "config": to_dict(cfg), **(extra or {})})
     with atomic_dir(out) as tmp:
         write_pose_json(tmp / "pv_pose.json", result.timestamps, _invalid_as_zero(result.pv_poses))
         write_pose_json(tmp / "depth_ahat_pose.json", result.timestamps, _invalid_as_zero(result.depth_poses))
@@ -407,10 +408,10 @@ def _jsonable(o):
 
 
 def report_markdown(report: dict) -> str:
-    lines = [f"# Pose refinement of {report['recording']}", "", f"{report['frames']} frames.", "",
-             "| stage | seconds |", "|---|---|"]
-    lines += [f"| {k} | {v:.2f} |" for k, v in report["stage_seconds"].items()]
-    lines += ["", "| factors | count |", "|---|---|"] + [f"| {k} | {v} |" for k, v in report["factors"].items()]
+    lines = [f"# Pose refinement of {report['recording']}", "", f"{report['frames']} frames; stages: "
+             f"{', '.join(report['stages'])} (their times are printed by `egograph refine`, not written, so that "
+             f"two runs write the same bytes).", ""]
+    lines += ["| factors | count |", "|---|---|"] + [f"| {k} | {v} |" for k, v in report["factors"].items()]
     ch = report["change"]
     if ch.get("n"):
         lines += ["", f"Change against the reported PV poses: translation RMS {ch['trans_rms_m'] * 1000:.1f} mm "

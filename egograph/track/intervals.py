@@ -19,6 +19,7 @@ import numpy as np
 from egograph.core.errors import InputError
 from egograph.core.types import PositionInterval, Prediction
 from egograph.core.units import TICKS_PER_SECOND
+from egograph.core.values import without_wall_clock
 from egograph.io.atomic import atomic_write_text
 
 
@@ -75,7 +76,7 @@ def intervals_json_text(intervals: Sequence[PositionInterval], metadata: dict, *
     doc = {"schema_version": SCHEMA_VERSION, "units": UNITS, "sequence": sequence,
            "first_frame_ticks": t0, "n_frames": None if ts is None else len(ts),
            "instances": list(labels) if labels is not None else None,
-           "metadata": metadata, "intervals": rows}
+           "metadata": without_wall_clock(metadata), "intervals": rows}
     return json.dumps(doc, indent=1) + "\n"
 
 
