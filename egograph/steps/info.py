@@ -88,7 +88,7 @@ def summarize(rec: Recording, depth_samples: int = 5) -> dict:
     if gt is not None:
         gt_ts, true_pv, _ = read_pose_json(gt / "pv_pose.json")
         # frames of the recording without a pose are not in rec: compare the frames both have
-        both, i, j = np.intersect1d(rec.timestamps, gt_ts, return_indices=True)
+        _, i, j = np.intersect1d(rec.timestamps, gt_ts, return_indices=True)
         trans, rot = pose_differences(rec.pv_poses[i], true_pv[j])
         out["pose_error_vs_truth"] = error_summary(trans, rot)
         false_counts = {}

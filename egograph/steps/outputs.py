@@ -20,10 +20,9 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
-import yaml
 
 from egograph import __version__
-from egograph.core.config import to_dict
+from egograph.core.config import to_dict, to_yaml
 
 RUN_FILE = "egograph.json"
 CONFIG_FILE = "config.yaml"
@@ -69,22 +68,18 @@ def folder_digest(path: Path) -> str:
 
 
 def config_yaml(cfg) -> str:
-    """The resolved configuration as YAML that ``load_config`` reads back."""
-    try:
-        from egograph.core.config import to_yaml
-    except ImportError:
-        to_yaml = None
-    if to_yaml is not None:
-        return to_yaml(cfg)
-    return yaml.safe_dump(to_dict(cfg), sort_keys=False)
+    """The resolved configuration as YAML that ``load_config`` reads back (each knob's doc above it)."""
+    return to_yaml(cfg)
 
 
-def run_record(step: str, cfg, inputs: dict, argv: list[str] | None = None) -> dict:
-    """The run record of a step: what made the output (``fingerprint`` covers step, version,
-    inputs and configuration; the command line is recorded but not part of it)."""
+def run_record(step: str, cfg, inputs: dict, depends_on: dict | None = None, argv: list[str] | None = None) -> dict:
+    """The run record of a step: what made the output. ``fingerprint`` covers step, version, inputs
+    and ``depends_on`` (the configuration sections the result depends on; default the whole
+    configuration); the command line is recorded but not part of it."""
     config = to_dict(cfg) if cfg is not None else None
+    deps = config if depends_on is None else depends_on
     return {"step": step, "egograph_version": __version__, "command": command_line(argv),
-            "inputs": inputs, "config": config, "fingerprint": digest(step, __version__, inputs, config)}
+            "inputs": inputs, "config": config, "fingerprint": digest(step, __version__, inputs, deps)}
 
 
 def run_files(record: dict, cfg) -> dict[str, str]:

@@ -6,6 +6,7 @@ from __future__ import annotations
 
 from pathlib import Path
 
+from egograph.core.config import to_dict
 from egograph.core.errors import ConfigError, InputError
 from egograph.io.recording import Recording
 from egograph.steps import outputs
@@ -30,9 +31,8 @@ def refine(rec: Recording, cfg, out: str | Path | None = None, *, overwrite: boo
     if usable < 3:
         raise InputError(rec.seq_dir / "pv_pose.json", f"refine needs at least 3 frames with valid PV and AHAT poses; "
                                                        f"found {usable} of {len(rec)}")
-    record = outputs.run_record("refine", cfg, {"recording": outputs.recording_digest(rec)})
-    record["fingerprint"] = outputs.digest("refine", record["egograph_version"], record["inputs"],
-                                           {"refine": record["config"]["refine"]})
+    record = outputs.run_record("refine", cfg, {"recording": outputs.recording_digest(rec)},
+                                depends_on={"refine": to_dict(cfg.refine)})
     if out is not None:
         check_output(rec, Path(out))
         if outputs.up_to_date(out, record, overwrite):
@@ -50,7 +50,7 @@ def refine(rec: Recording, cfg, out: str | Path | None = None, *, overwrite: boo
         from egograph.poses.evaluate import evaluate_trajectory
 
         gt_ts, gt, _ = read_pose_json(rec.synth_gt_dir / "pv_pose.json")
-        both, i, j = np.intersect1d(rec.timestamps, gt_ts, return_indices=True)  # frames both have
+        _, i, j = np.intersect1d(rec.timestamps, gt_ts, return_indices=True)  # frames both have
         extra["eval_reported"] = evaluate_trajectory(rec.pv_poses[i], gt[j]).as_dict()
         extra["eval_refined"] = evaluate_trajectory(result.pv_poses[i], gt[j]).as_dict()
     if out is not None:

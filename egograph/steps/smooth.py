@@ -22,8 +22,7 @@ def smooth(rec: Recording, results: str | Path | TrackResult, cfg, out: str | Pa
               "results": str(results) if not isinstance(results, TrackResult) else "in memory",
               "predictions": outputs.digest(sorted((t, [(p.instance, p.xyz, p.score) for p in v])
                                                    for t, v in source.per_frame.items()))}
-    record = outputs.run_record("smooth", cfg, inputs)
-    record["fingerprint"] = outputs.digest("smooth", record["egograph_version"], inputs, tracker_sections(cfg))
+    record = outputs.run_record("smooth", cfg, inputs, depends_on=tracker_sections(cfg))
     if outputs.up_to_date(out, record, overwrite):
         return read_result(out, rec)
     result = smooth_predictions(rec, source.per_frame, cfg.graph, causal=causal, progress=progress)

@@ -73,10 +73,8 @@ def track(rec: Recording, tracker: str, obs: Observations, cfg, out: str | Path 
     or read it back when it already holds this exact run (same tracker, observations, configuration)."""
     run = get_tracker(tracker)
     record = outputs.run_record("track", cfg, {"tracker": tracker, "recording": outputs.recording_digest(rec),
-                                               "observations": observations_id(obs)})
-    # The fingerprint covers only what the result depends on, not every section of the config.
-    record["fingerprint"] = outputs.digest("track", record["egograph_version"], record["inputs"],
-                                           tracker_sections(cfg))
+                                               "observations": observations_id(obs)},
+                                depends_on=tracker_sections(cfg))
     if outputs.up_to_date(out, record, overwrite):
         return read_result(out, rec)
     result = run(rec, obs, cfg, progress=progress)
@@ -84,12 +82,3 @@ def track(rec: Recording, tracker: str, obs: Observations, cfg, out: str | Path 
     if out is not None:
         write_result(out, rec, result, record, cfg)
     return result
-
-
-def summary_line(result: TrackResult) -> dict:
-    """Counts a person wants after a run (for the CLI and batch logs)."""
-    return {"predictions": result.n_predictions,
-            "frames_with_prediction": sum(1 for v in result.per_frame.values() if v),
-            "intervals": None if result.intervals is None else len(result.intervals)}
-
-
