@@ -418,3 +418,197 @@ def test_former_tracebacks_end_cleanly(small_rec, tmp_path, capsys, case):
         lines = [line for line in err.splitlines() if line.startswith("egograph: error:")]
         assert len(lines) == 1 and not out.exists()
         assert {"refine_one_frame": "pv_pose.json", "alias_zero": "alias.bin", "synth_one_frame": "frames"}[case] in lines[0]
+
+
+# --------------------------------------------------------------------------- what the CLI fuzz found (issue 13)
+
+
+def test_pose_files_unreadable_in_any_way_are_refused_naming_the_file(tmp_path):
+    from egograph.core.errors import InputError
+    from egograph.io.poses import read_pose_json
+
+    eye = "[[1,0,0,0],[0,1,0,0],[0,0,1,0],[0,0,0,1]]"
+    cases = {"not_utf8": (b"\x89\xff{}", "not UTF-8"), "deep": (b"[" * 100_000, "nested too deeply"),
+             "underscore_key": (f'{{"1_000": {eye}}}'.encode(), "not an integer timestamp"),
+             "huge_int": (b'{"1": [[1' + b"0" * 400 + b',0,0,0],[0,1,0,0],[0,0,1,0],[0,0,0,1]]}',
+                          "not a numeric 4x4 matrix")}
+    for name, (data, words) in cases.items():
+        p = tmp_path / name
+        p.write_bytes(data)
+        with pytest.raises(InputError, match=words) as exc:
+            read_pose_json(p)
+        assert exc.value.path == p, name
+    folder = tmp_path / "folder.json"
+    folder.mkdir()
+    with pytest.raises(InputError, match="found a folder") as exc:
+        read_pose_json(folder)
+    assert exc.value.path == folder
+    bom = tmp_path / "bom.json"  # written by Windows tools: read as the same poses
+    bom.write_bytes(b"\xef\xbb\xbf" + f'{{"7": {eye}}}'.encode())
+    ts, poses, valid = read_pose_json(bom)
+    assert ts.tolist() == [7] and valid.all() and np.array_equal(poses[0], np.eye(4))
+
+
+def _ply(tmp_path: Path, name: str, data: bytes) -> Path:
+    p = tmp_path / name
+    p.write_bytes(data)
+    return p
+
+
+def test_check_ply_refuses_truncated_and_broken_files_and_reads_good_ones(tmp_path):
+    from egograph.core.errors import InputError
+    from egograph.io.recording import check_ply
+
+    header = (b"ply\nformat binary_little_endian 1.0\ncomment x\nelement vertex 4\nproperty float x\nproperty float y\n"
+              b"property float z\nelement face 2\nproperty list uchar int vertex_indices\nend_header\n")
+    verts = np.arange(12, dtype="<f4").tobytes()
+    tri = bytes([3]) + np.array([0, 1, 2], "<i4").tobytes()
+    quad = bytes([4]) + np.array([0, 1, 2, 3], "<i4").tobytes()
+    good = {"triangles": header + verts + tri + tri, "mixed": header + verts + tri + quad,
+            "big_endian": header.replace(b"little", b"big") + np.arange(12, dtype=">f4").tobytes()
+            + bytes([3]) + np.array([0, 1, 2], ">i4").tobytes() + bytes([3]) + np.array([0, 1, 2], ">i4").tobytes(),
+            "ascii": b"ply\nformat ascii 1.0\nelement vertex 3\nproperty float x\nproperty float y\nproperty float z\n"
+                     b"element face 1\nproperty list uchar int vertex_indices\nend_header\n0 0 0\n1 0 0\n0 1 0\n3 0 1 2\n"}
+    for name, data in good.items():
+        assert check_ply(_ply(tmp_path, name, data)) == ({"vertex": 4, "face": 2} if name != "ascii" else
+                                                         {"vertex": 3, "face": 1}), name
+    bad = {"empty": (b"", "no 'ply' magic"), "garbage": (bytes(range(128, 200)), "no 'ply' magic"),
+           "header_cut": (header[:60], "no end_header"),
+           "in_vertices": (header + verts[:20], "4 vertex rows of 12 bytes need"),
+           "last_face_short": (header + verts + tri + tri[:-1], "ends in face row 2 of 2"),
+           "one_face_less": (header + verts + tri, "ends in face row 2 of 2"),
+           "mixed_short": (header + verts + tri + quad[:-4], "ends in face row 2 of 2"),
+           "bad_header_line": (header.replace(b"comment x", b"colour red"), "header line 3 is not PLY"),
+           "ascii_short": (good["ascii"][:-8], "declares 4 rows, the file has 3 data lines")}
+    for name, (data, words) in bad.items():
+        p = _ply(tmp_path, name, data)
+        with pytest.raises(InputError, match="unreadable PLY") as exc:
+            check_ply(p)
+        assert words in str(exc.value) and exc.value.path == p, (name, str(exc.value))
+    (tmp_path / "dir.ply").mkdir()
+    with pytest.raises(InputError, match="unreadable PLY: a folder"):
+        check_ply(tmp_path / "dir.ply")
+
+
+def _copy(small_rec: Path, tmp_path: Path) -> Path:
+    root = tmp_path / "rec"
+    shutil.copytree(small_rec, root)
+    return root
+
+
+def _error_line(err: str) -> str:
+    lines = [ln for ln in err.splitlines() if ln.startswith("egograph: error:")]
+    assert len(lines) == 1, err
+    return lines[0]
+
+
+@pytest.mark.slow
+def test_refine_and_info_name_a_truncated_mesh_unreadable(small_rec, tmp_path, capsys, recwarn):
+    """Once: "mesh has no triangles" (Open3D read the truncated file as an empty mesh) and Open3D's
+    own line on stderr; info counted the header's faces."""
+    root = _copy(small_rec, tmp_path)
+    mesh = seq(root) / "mesh" / "scene.ply"
+    mesh.write_bytes(mesh.read_bytes()[:-5])  # the last face cut short
+    out = tmp_path / "refined"
+    code, _, err = run(["refine", str(root), "--quiet", "--out", str(out)], capsys, recwarn)
+    assert code == 2 and not out.exists(), err
+    line = _error_line(err)
+    assert str(mesh) in line and "unreadable PLY: truncated" in line, line
+    code, _, err = run(["info", str(root), "--json", str(tmp_path / "info.json")], capsys, recwarn)
+    assert code == 0 and f"{mesh}: unreadable PLY" in err, err
+    summary = json.loads((tmp_path / "info.json").read_text())
+    assert summary["mesh_triangles"] is None
+    assert any(i["what"] == "scene mesh" and i["problem"] for i in summary["inputs"])
+
+
+def test_regt_without_labels_names_the_annotation_folder(small_rec, tmp_path, capsys, recwarn):
+    root = _copy(small_rec, tmp_path)
+    (ann_dir(root) / "labels.csv").unlink()
+    code, _, err = run(["regt", str(root), "--quiet", "--out", str(tmp_path / "regt")], capsys, recwarn)
+    assert code == 2
+    line = _error_line(err)
+    assert f"{ann_dir(root)}/{{labels.csv,label.csv}} (the folder is there, without a labels file)" in line, line
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("strict", [False, True])
+def test_lift_counts_and_warns_pv_frames_without_a_detection_file(small_rec, tmp_path, capsys, recwarn, strict):
+    root = _copy(small_rec, tmp_path)
+    for f in det_files(root)[:7]:
+        f.unlink()
+    out = tmp_path / "obs.npz"
+    code, stdout, err = run(["lift", str(root), "--detections", "svoe", "--quiet", "--out", str(out)]
+                            + (["--strict"] if strict else []), capsys, recwarn)
+    words = f"{det_dir(root)}: 7 of 60 PV frames have no detection file"
+    if strict:
+        assert code == 2 and words in _error_line(err) and not out.exists(), err
+        return
+    assert code == 0 and words in err, err
+    assert f"PV frames without a detection file in {det_dir(root)}: 7 of 60" in " ".join(stdout.split())
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("case", ["centers_empty", "centers_missing", "motion_missing", "boxes_missing"])
+def test_regt_says_what_it_lacks(small_rec, tmp_path, capsys, recwarn, case):
+    root = _copy(small_rec, tmp_path)
+    a = ann_dir(root)
+    culprit = {"centers_empty": a / "3d_center_annot.txt", "centers_missing": a / "3d_center_annot.txt",
+               "motion_missing": a / "motion_state_annot.txt", "boxes_missing": a / "2d_bbox_annot"}[case]
+    if case == "centers_empty":
+        culprit.write_text("")
+    elif case == "boxes_missing":
+        shutil.rmtree(culprit)
+    else:
+        culprit.unlink()
+    out = tmp_path / "regt"
+    code, _, err = run(["regt", str(root), "--quiet", "--out", str(out)], capsys, recwarn)
+    if case.startswith("centers"):  # the re-estimates are still made; there is nothing to audit
+        assert code == 0 and out.is_dir(), err
+        assert f"{culprit}: {'empty' if case == 'centers_empty' else 'missing'}" in err, err
+        assert "no given centre to audit them against" in err
+        return
+    assert code == 2 and not out.exists(), err
+    assert f"egograph: error: {culprit}: " in _error_line(err)
+
+
+def test_eval_refuses_an_empty_centre_file(small_rec, good_outputs, tmp_path, capsys, recwarn):
+    """Once: "recovered 0/0" and exit 0."""
+    root, out, results = setup_case(small_rec, good_outputs, tmp_path, "eval")
+    before = tree_bytes(out)
+    centers = ann_dir(root) / "3d_center_annot.txt"
+    centers.write_text("# nothing annotated\n")
+    code, _, err = run(command("eval", root, out, results), capsys, recwarn)
+    assert code == 2 and tree_bytes(out) == before, err
+    line = _error_line(err)
+    assert str(centers) in line and "nothing to score against" in line, line
+
+
+@pytest.mark.parametrize("case", ["labels_missing", "depth_missing"])
+def test_info_warns_about_missing_inputs_and_strict_refuses(small_rec, tmp_path, capsys, recwarn, case):
+    root = _copy(small_rec, tmp_path)
+    if case == "labels_missing":
+        (ann_dir(root) / "labels.csv").unlink()
+        culprit, words = seq(root), f"{ann_dir(root)}/{{labels.csv,label.csv}} (the folder is there"
+    else:
+        culprit, words = seq(root) / "depth_ahat", "no AHAT depth frame for any PV frame: folder missing"
+        shutil.rmtree(culprit)
+    code, _, err = run(["info", str(root)], capsys, recwarn)
+    assert code == 0 and f"{culprit}: " in err and words in err, err
+    code, _, err = run(["info", str(root), "--strict"], capsys, recwarn)
+    assert code == 2
+    line = _error_line(err)
+    assert str(culprit) in line and words in line, line
+
+
+@pytest.mark.slow
+def test_lift_warns_about_detections_beyond_the_labels(small_rec, tmp_path, capsys, recwarn):
+    """Once only in the lift report on stdout ("1 unknown_instance")."""
+    root = _copy(small_rec, tmp_path)
+    f = first_nonempty_det(root)
+    append(f, "99 10 10 50 50 0.5\n")
+    argv = ["lift", str(root), "--detections", "svoe", "--quiet", "--out", str(tmp_path / "obs.npz")]
+    code, stdout, err = run(argv, capsys, recwarn)
+    assert code == 0 and f"{f}: instance id 99 beyond the 5 labels of labels.csv; 1 detection(s)" in err, err
+    assert "1  unknown_instance" in stdout
+    code, _, err = run(argv + ["--strict", "--overwrite"], capsys, recwarn)
+    assert code == 2 and str(f) in _error_line(err)

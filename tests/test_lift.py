@@ -13,6 +13,7 @@ from egograph.geometry import hl2ss as g
 from egograph.geometry.config import LiftConfig
 from egograph.geometry.lift import lift_recording, write_lifted_dir
 from egograph.geometry.prefetch import prefetched
+from egograph.geometry.reference_lift import reference_frame_map, reference_setup
 from egograph.geometry.robust_lift import alias_shifts, box_reach, nearest_dominant_cluster, shrink_box
 from egograph.io.detections import read_detection_dir, read_results_dir
 from egograph.io.poses import read_pose_json
@@ -158,6 +159,63 @@ def test_reference_matches_literal_rule_on_real_frame(tiny_rec, svoe):
                         best, pick = dist, crop[a, b]
         p = np.append(pick.astype(np.float64), 1.0) @ np.linalg.inv(rec.ahat.extrinsics) @ rec.depth_poses[i]
         np.testing.assert_allclose(obs.world[row], p[:3], atol=1e-9)
+
+
+def notebook_pick(dmap: np.ndarray, line: str):
+    """The IT3DEgo notebook's rule, restated from its text for one association line
+    ``instance x1 y1 x2 y2 score``: every field through ``int(float(s))``, the box dropped when
+    ``int(x1) <= 1 and int(y1) <= 1``, then the crop of the integer corners and the valid pixel
+    nearest (L1, first in row-major order) to ``(int((y2-y1)/2), int((x2-x1)/2))``. None: dropped
+    or no depth."""
+    _, x1, y1, x2, y2 = [int(float(s)) for s in line.split()[:5]]
+    if int(x1) <= 1 and int(y1) <= 1:
+        return None
+    start_x, start_y, stop_x, stop_y = float(x1), float(y1), float(x2), float(y2)
+    crop = dmap[int(start_y):int(stop_y), int(start_x):int(stop_x), :]
+    ys, xs = crop[..., 2].nonzero()
+    if len(xs) == 0:
+        return None
+    c_y, c_x = int((stop_y - start_y) / 2.0), int((stop_x - start_x) / 2.0)
+    k = (np.abs(ys - c_y) + np.abs(xs - c_x)).argmin()
+    return crop[ys[k], xs[k]]
+
+
+def test_reference_matches_notebook_on_fractional_boxes(tiny_rec, svoe):
+    """Fractional boxes (SAM's are): the lift picks the notebook's pixel (1e-9 m), drops the boxes
+    its border rule drops, and the old rule (the float box's half size) would have picked another
+    pixel for some of them, so the test tells the two apart."""
+    rec = fresh(tiny_rec)
+    ts = next(t for t, d in svoe.items() if len(d) >= 2)
+    i = rec.index_of(ts)
+    rng = np.random.default_rng(3)
+    base = svoe[ts][0].box
+    boxes = [Box(base.x_min + a, base.y_min + b, base.x_max + c, base.y_max + d)
+             for a, b, c, d in rng.uniform(-6.0, 6.0, size=(200, 4))]
+    boxes += [Box(0.4, 1.9, 300.3, 200.7),          # border rule: int(x1) <= 1 and int(y1) <= 1 -> dropped
+              Box(1.99, 0.2, 40.0, 30.0),           # dropped too
+              Box(1.2, 2.0, 300.6, 200.2),          # int(y1) = 2: kept
+              Box(1200.7, 300.2, 1290.9, 380.6)]    # past the right edge: the reference slices, never clips
+    dets = [Detection(0, b, 0.7) for b in boxes]
+    obs, rep = lift_recording(rec, {ts: dets}, LiftConfig(mode="reference"), progress=False)
+    setup = reference_setup(rec)
+    dmap = reference_frame_map(setup, rec.depth_raw(i))
+    to_world = np.linalg.inv(rec.ahat.extrinsics) @ rec.depth_poses[i]
+    differ = 0
+    for row, b in enumerate(boxes):
+        pick = notebook_pick(dmap, f"0 {b.x_min!r} {b.y_min!r} {b.x_max!r} {b.y_max!r} 0.7")
+        if pick is None:
+            assert not obs.valid[row]
+            continue
+        expect = (np.append(pick.astype(np.float64), 1.0) @ to_world)[:3]
+        np.testing.assert_allclose(obs.world[row], expect, atol=1e-9)
+        # the rule before: centre from the float box's half size, crop from truncated float corners
+        crop = dmap[int(b.y_min):int(b.y_max), int(b.x_min):int(b.x_max)]
+        ys, xs = crop[..., 2].nonzero()
+        k = (np.abs(ys - int((b.y_max - b.y_min) / 2)) + np.abs(xs - int((b.x_max - b.x_min) / 2))).argmin()
+        differ += not np.array_equal(crop[ys[k], xs[k]], pick)
+    assert rep.skipped.get("reference_border") == 2
+    assert not obs.valid[200] and not obs.valid[201] and obs.valid[202]
+    assert differ >= 5
 
 
 # --------------------------------------------------------------------------- robust mode accuracy
@@ -337,3 +395,49 @@ def test_helpers():
     assert box_reach(np.array([100.0, 100, 105, 105]), k, 0.45, 5.5) == 5.5
     with pytest.raises(ValueError):
         LiftConfig(mode="nope").check()
+
+
+@pytest.mark.slow
+def test_fisheye_region_bound_loses_no_pixel(tiny_rec, svoe, monkeypatch):
+    """With a real (fisheye) AHAT calibration the robust lift bounds each box's AHAT region through
+    the ray table instead of searching the whole frame. Brute force over every pixel and alias:
+    each reading that registers into the box at a range the lift searches (from REGION_NEAR_M,
+    within reach or the reading itself) lies inside the bound."""
+    import dataclasses
+
+    from egograph.geometry import lift as lift_module
+    from egograph.geometry import robust_lift
+    from egograph.io.devices import device_ahat_calibration
+
+    rec = fresh(tiny_rec)
+    real = device_ahat_calibration("hl2-a")
+    real = dataclasses.replace(real, alias_mm=rec.ahat.alias_mm, scale=rec.ahat.scale, extrinsics=rec.ahat.extrinsics)
+    rec = dataclasses.replace(rec, ahat=real)
+    sub = dict(list(svoe.items())[::6])
+    calls = []
+    lift_one = lift_module.robust_box_point
+
+    def spy(ctx, raw, frame, box):
+        calls.append((ctx, raw, frame, np.array(box)))
+        return lift_one(ctx, raw, frame, box)
+
+    monkeypatch.setattr(lift_module, "robust_box_point", spy)
+    obs, rep = lift_recording(rec, sub, LiftConfig(), progress=False)
+    assert any("ray table" in n for n in rep.notes) and obs.valid.sum() > 10 and len(calls) > 10
+    checked = 0
+    for ctx, raw, frame, box in calls:
+        reach = robust_lift.box_reach(box, rec.pv.intrinsics, ctx.cfg.max_object_size_m, ctx.cfg.max_range_m)
+        r0, r1, c0, c1 = robust_lift._ahat_region(ctx, frame, box, reach)
+        raw = raw.astype(np.float64).ravel()
+        dirs = ctx.dirs.reshape(-1, 3).astype(np.float64)
+        for k in range(robust_lift._alias_count(ctx)):
+            r = raw * ctx.m_per_raw + k * ctx.alias_m
+            p = np.concatenate([dirs * r[:, None], np.ones((len(r), 1))], 1) @ frame.ahat_to_pvimg
+            with np.errstate(all="ignore"):
+                u, v = p[:, 0] / p[:, 2], p[:, 1] / p[:, 2]
+            hit = ((raw > 0) & (p[:, 2] < 0) & (u >= box[0]) & (u < box[2]) & (v >= box[1]) & (v < box[3])
+                   & (r >= robust_lift.REGION_NEAR_M) & ((r <= reach) | (k == 0)))
+            rows, cols = np.divmod(np.flatnonzero(hit), 512)
+            checked += len(rows)
+            assert ((rows >= r0) & (rows < r1) & (cols >= c0) & (cols < c1)).all(), (box, k)
+    assert checked > 1000

@@ -206,3 +206,137 @@ def test_redetect_reproduces_and_changes_only_detections(tmp_path):
     assert n["svoe"] <= sum(1 for _ in det.glob("*.txt"))  # only "other" matches can remain
     assert tree_digest(root / "tiny_seq") == depth_before
     assert tree_digest(root) != before
+
+
+# ---------------------------------------------------------------- generator revision 4 (issue 14 §3)
+
+def to_plain(cfg):
+    from egograph.core.config import to_dict
+
+    return to_dict(cfg)
+
+
+def _static_scene_distance(root):
+    """Distance (metres) from world points to the true static scene of a synthetic recording."""
+    import open3d as o3d
+
+    from egograph.core.config import load_config
+    from egograph.core.resources import synth_config
+    from egograph.synth.config import SynthConfig
+    from egograph.synth.generate import STREAMS
+    from egograph.synth.scene import make_scene
+
+    meta = json.loads((root / "recording.json").read_text())
+    cfg = load_config(SynthConfig, synth_config("tiny"))  # the fixtures' scene config
+    assert to_plain(cfg.scene) == meta["config"]["scene"]
+    rng = np.random.default_rng(np.random.SeedSequence(meta["seed"]).spawn(len(STREAMS))[STREAMS.index("scene")])
+    scene = make_scene(rng, cfg.scene)
+    rc = o3d.t.geometry.RaycastingScene()
+    rc.add_triangles(o3d.core.Tensor(scene.static_vertices.astype(np.float32)),
+                     o3d.core.Tensor(scene.static_triangles.astype(np.uint32)))
+    return lambda pts: rc.compute_distance(o3d.core.Tensor(pts.astype(np.float32))).numpy()
+
+
+def test_ahat_round_trip_through_the_real_calibration(tiny_rec):
+    """Depth rendered through hl2-a, lifted back with egograph.geometry and the written calibration
+    and true depth poses, lands on the true static scene; the AHAT looks forward and down."""
+    from egograph.geometry.hl2ss import ahat_raw_to_camera, ahat_to_world_matrix, transform_points
+
+    rec = Recording.open(tiny_rec)
+    meta = json.loads((tiny_rec / "recording.json").read_text())
+    assert meta["config"]["ahat"]["device"] == "hl2-a"
+    # the real rays: about 114 px focal, 113 deg across
+    assert 1.4 < np.abs(rec.ahat.uv2xy[0, 0]).min() < 1.7 and abs(rec.ahat.intrinsics[0, 0] - 114.1) < 1
+    _, depth_true, _ = read_pose_json(rec.synth_gt_dir / "depth_ahat_pose.json")
+    _, pv_true, _ = read_pose_json(rec.synth_gt_dir / "pv_pose.json")
+    distance = _static_scene_distance(tiny_rec)
+    alias = rec.ahat.alias_m
+    for i in (30, 120, 200):
+        raw = rec.depth_raw(i)
+        ok = raw > 0
+        cam = ahat_raw_to_camera(raw, rec.ahat.uv2xy, rec.ahat.scale, 4.0)[ok]
+        unit = cam / np.linalg.norm(cam, axis=1, keepdims=True)
+        to_world = ahat_to_world_matrix(rec.ahat.extrinsics, depth_true[i])
+        # the reading wraps at the alias distance: the nearest of r + k * alias to the scene
+        d = np.stack([distance(transform_points(cam + k * alias * unit, to_world)) for k in range(4)]).min(0)
+        assert np.median(d) < 0.01, (i, np.median(d))
+        assert (d < 0.03).mean() > 0.8
+        # forward-down: the AHAT's optical axis is 10-25 deg below the PV camera's (PV tilt 5 deg)
+        ahat_fwd = to_world[2, :3]
+        pv_fwd = -pv_true[i][2, :3]
+        pv_down = -pv_true[i][1, :3]
+        below = np.degrees(np.arcsin(np.clip(ahat_fwd @ pv_down, -1, 1)))
+        assert 7 < below < 20 and ahat_fwd @ pv_fwd > 0.9
+        assert to_world[0, :3] @ pv_true[i][0, :3] > 0.97  # image x to the right in both
+
+
+def test_pinhole_ahat_still_reachable(tmp_path):
+    from egograph.core.config import load_config
+    from egograph.core.resources import synth_config
+    from egograph.synth.config import SynthConfig
+    from egograph.synth.sensors import make_calibration
+
+    cfg = load_config(SynthConfig, synth_config("tiny"), ["ahat.device=pinhole"])
+    hs = make_calibration(cfg.ahat, cfg.pv)
+    assert np.allclose(hs.node_to_head, np.eye(4)) and hs.ray_valid.all()
+    np.testing.assert_allclose(hs.ahat.uv2xy[256, 256 + 100], [100.5 / 250, 0.5 / 250], atol=1e-6)
+
+
+def test_put_downs_and_pick_ups_are_watched(tiny_rec):
+    """The wearer looks at what the hands do: every true interval that ends with a pick-up or starts
+    with a put-down is at least a quarter visible in some frame (revision 3 missed 29 % of all true
+    intervals over the benchmark set). Intervals of objects never moved may go unseen in a recording
+    this short (8 s); the share over the benchmark set is measured by tools/bench_synth.py."""
+    from egograph.synth.truth import never_visible_intervals
+
+    rec = Recording.open(tiny_rec)
+    gt = np.load(rec.synth_gt_dir / "instances.npz")
+    ivs = json.loads((rec.synth_gt_dir / "intervals.json").read_text())
+    n = len(gt["timestamps"])
+    seen = [gt["visible"][iv["frame_start"]:iv["frame_end"] + 1, iv["instance"]].max() >= 0.25 for iv in ivs]
+    touched = [iv["frame_start"] > 0 or iv["frame_end"] < n - 1 for iv in ivs]
+    assert sum(touched) >= 2
+    assert all(s for s, t in zip(seen, touched) if t)
+    never, total = never_visible_intervals(rec)
+    assert (never, total) == (len(ivs) - sum(seen), len(ivs))
+    assert never_visible_intervals(tiny_rec) == (never, total)  # a root folder works too
+
+
+def test_hand_occludes_the_carried_object(parts):
+    """While carried, an object in view is partly hidden by the hand (less visible than at rest)."""
+    rec, ann, gt = parts
+    vis, boxes, moving = gt["visible"], gt["boxes"], gt["moving"]
+    inview = np.isfinite(boxes[..., 0]) & (vis > 0)
+    carried = vis[moving & inview]
+    resting = vis[~moving & inview]
+    assert len(carried) > 20
+    assert np.median(carried) < 0.9 and np.median(carried) < np.median(resting)
+
+
+def test_mesh_bakes_first_places_and_has_holes(tiny_rec):
+    """The HoloLens mesh holds some instances at their first place (and still after they moved),
+    some of the untracked objects, and has holes."""
+    import open3d as o3d
+
+    rec = Recording.open(tiny_rec)
+    meta = json.loads((rec.synth_gt_dir / "scene.json").read_text())
+    mesh = o3d.t.geometry.TriangleMesh.from_legacy(o3d.io.read_triangle_mesh(str(rec.seq_dir / "mesh" / "scene.ply")))
+    rc = o3d.t.geometry.RaycastingScene()
+    rc.add_triangles(mesh)
+    dist = lambda p: float(rc.compute_distance(o3d.core.Tensor(np.asarray([p], np.float32))).numpy()[0])  # noqa: E731
+    gt = np.load(rec.synth_gt_dir / "instances.npz")
+    props = meta["untracked_objects"]
+    assert len(props) >= 5 and all(0.05 - 1e-9 <= max(p["size"]) <= 0.3 + 1e-9 for p in props)
+    assert any(p["in_mesh"] for p in props) and not all(p["in_mesh"] for p in props)
+    # a baked instance's first place is covered by the mesh (its top within a few cm), a moved-to place is not
+    top = lambda c, h: np.asarray(c) + [0, h / 2, 0]  # noqa: E731
+    sizes = [o["size"] for o in meta["objects"]]
+    baked = meta["instances_in_mesh"]
+    for j in baked:
+        assert dist(top(gt["positions"][0, j], sizes[j][1])) < 0.04
+    for m in meta["moves"]:
+        if m["instance"] not in baked:
+            assert dist(top(m["dst"], sizes[m["instance"]][1])) > 0.02
+    # holes: the mesh has boundary edges
+    legacy = o3d.io.read_triangle_mesh(str(rec.seq_dir / "mesh" / "scene.ply"))
+    assert not legacy.is_watertight()

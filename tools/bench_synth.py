@@ -2,7 +2,11 @@
 """Benchmark the synthetic generator (frames/s, depth only and with RGB) and the reader
 (frames/s to open a recording and load poses + every depth frame).
 
-    .venv/bin/python tools/bench_synth.py --frames 3000 --rgb-frames 300
+    taskset -c 0 .venv/bin/python tools/bench_synth.py --frames 3000 --rgb-frames 300
+
+Wall-clock and CPU seconds (the process's, all threads) are both printed: on a shared machine the
+CPU figure is the one that says what one core does (run it under ``taskset -c 0`` for one core).
+Also prints the never-visible share of true intervals of the depth-only recording.
 """
 
 from __future__ import annotations
@@ -18,6 +22,7 @@ from egograph.core.resources import synth_config
 from egograph.io.recording import Recording
 from egograph.synth.config import SynthConfig
 from egograph.synth.generate import generate
+from egograph.synth.truth import never_visible_intervals
 
 REPO = Path(__file__).resolve().parents[1]
 
@@ -36,21 +41,26 @@ def main() -> None:
     try:
         cfg = load_config(SynthConfig, args.config, [f"frames={args.frames}", "pv.rgb=false"])
         out = args.keep or tmp / "depth"
+        c = time.process_time()
         r = generate(out, cfg, seed=args.seed, progress=True)
-        rows.append(("generate, depth only", r.frames, r.seconds))
-        t = time.perf_counter()
+        rows.append(("generate, depth only", r.frames, r.seconds, time.process_time() - c))
+        never, total = never_visible_intervals(out)
+        t, c = time.perf_counter(), time.process_time()
         rec = Recording.open(out)
         n = sum(rec.depth_raw(i) is not None for i in range(len(rec)))
-        rows.append(("read poses + all depth frames", n, time.perf_counter() - t))
+        rows.append(("read poses + all depth frames", n, time.perf_counter() - t, time.process_time() - c))
         if args.rgb_frames:
             cfg = load_config(SynthConfig, args.config, [f"frames={args.rgb_frames}", "pv.rgb=true"])
+            c = time.process_time()
             r = generate(tmp / "rgb", cfg, seed=args.seed, progress=True)
-            rows.append(("generate, with RGB", r.frames, r.seconds))
+            rows.append(("generate, with RGB", r.frames, r.seconds, time.process_time() - c))
     finally:
         shutil.rmtree(tmp, ignore_errors=True)
-    print(f"\n{'stage':34s} {'frames':>7s} {'seconds':>8s} {'frames/s':>9s}")
-    for name, n, s in rows:
-        print(f"{name:34s} {n:7d} {s:8.1f} {n / s:9.1f}")
+    print(f"\n{'stage':34s} {'frames':>7s} {'seconds':>8s} {'frames/s':>9s} {'CPU s':>8s} {'frames/CPU-s':>13s}")
+    for name, n, s, cpu in rows:
+        print(f"{name:34s} {n:7d} {s:8.1f} {n / s:9.1f} {cpu:8.1f} {n / cpu:13.1f}")
+    print(f"\ntrue intervals never a quarter visible (intervals_never_visible): {never}/{total}"
+          f" ({100 * never / max(total, 1):.0f} %)")
     if args.frames:
         per = rows[0][2] / rows[0][1]
         print(f"\nprojected 3000-frame depth-only recording: {per * 3000:.0f} s")

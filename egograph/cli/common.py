@@ -38,6 +38,10 @@ def _add_rec_args(p: argparse.ArgumentParser) -> None:
     p.add_argument("--sequence", help="sequence name when REC holds several")
     p.add_argument("--calibration", type=Path, help="calibrations/ folder when not found beside/above the recording")
     p.add_argument("--annotations", type=Path, help="annotation folder when not found beside the recording")
+    p.add_argument("--strict", action="store_true",
+                   help="refuse input that is missing, unreadable or partly unusable (labels, enrollments, frames, "
+                        "invalid poses, depth sync; for eval also result files) instead of warning and counting "
+                        "(sets io.strict)")
 
 
 def _show_config(cfg, fmt: str = "table") -> None:
@@ -62,6 +66,8 @@ def pipeline_config(args):
     from egograph.steps.settings import EgographConfig
 
     cfg = load_config(EgographConfig, args.config, args.overrides)
+    if getattr(args, "strict", False):
+        cfg.io.strict = True
     if getattr(args, "lift", None):
         cfg.lift.mode = args.lift
         cfg.lift.check()

@@ -12,6 +12,7 @@
     egograph refine REC --out DIR
     egograph eval-poses REC [POSES]
     egograph demo [OUT]
+    egograph run DATASET --out RUNS [--stages ...] [--trackers ...] [--workers N | --scheduler ADDRESS]
 
 Bad input ends with one line naming the file (and line, or the config key) and exit code 2.
 """
@@ -267,7 +268,7 @@ def cmd_eval(args) -> int:
 
     cfg = pipeline_config(args)
     rec = _open(args, cfg)
-    report = evaluate(rec, args.results, strict=args.strict)
+    report = evaluate(rec, args.results, strict=args.strict or cfg.io.strict)
     con = _console()
     if args.format in ("table", "yaml"):
         report.print(con, per_instance=args.per_instance)
@@ -476,9 +477,8 @@ def build_parser() -> argparse.ArgumentParser:
     s.add_argument("--csv", type=Path, help="write the metrics as CSV")
     s.add_argument("--plot", type=Path, help="PNG of precision/recall against threshold")
     s.add_argument("--per-instance", action="store_true", help="also a table per instance")
-    s.add_argument("--strict", action="store_true",
-                   help="refuse results with PV frames without a file, lines for unknown instances, two lines for "
-                        "one instance in a frame, or files for no PV frame (default: count them and warn)")
+    # --strict (from _add_rec_args) also refuses results with PV frames without a file, lines for unknown
+    # instances, two lines for one instance in a frame, or files for no PV frame (default: count them and warn)
     s.add_argument("--format", choices=("table", "md", "csv", "json", "yaml"), default="table",
                    help="how to print: a table sized to the terminal, or every column as md, csv or json "
                         "(yaml: with --show-config)")
@@ -509,6 +509,9 @@ def build_parser() -> argparse.ArgumentParser:
     from egograph.cli import poses as cli_poses
 
     cli_poses.add_parsers(sub, _add_config_args, _add_rec_args, DEFAULT_CONFIG)
+    from egograph.cli import run as cli_run
+
+    cli_run.add_parser(sub, _add_config_args, DEFAULT_CONFIG)
     return p
 
 

@@ -50,7 +50,8 @@ def _open(args, cfg):
     # frames with an invalid pose are refined around (never an error here)
     return Recording.open(args.rec, sequence=args.sequence, calibration=args.calibration, annotations=args.annotations,
                           invalid_poses="skip" if cfg.io.invalid_poses == "error" else cfg.io.invalid_poses,
-                          depth_factor=cfg.io.depth_factor or None)
+                          depth_factor=cfg.io.depth_factor or None, strict=cfg.io.strict,
+                          depth_sync_ms=cfg.io.depth_sync_ms)
 
 
 def cmd_refine(args) -> int:

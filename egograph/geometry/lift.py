@@ -53,7 +53,13 @@ from egograph.geometry.config import LiftConfig
 from egograph.geometry.hl2ss import pose_validity, transform_points
 from egograph.geometry.observations import Observations
 from egograph.geometry.prefetch import prefetched
-from egograph.geometry.reference_lift import ReferenceSetup, reference_frame_map, reference_pick, reference_setup
+from egograph.geometry.reference_lift import (
+    ReferenceSetup,
+    reference_box,
+    reference_frame_map,
+    reference_pick,
+    reference_setup,
+)
 from egograph.geometry.robust_lift import RobustContext, alias_shifts, robust_box_point, robust_context
 from egograph.io.detections import write_results_dir
 
@@ -68,6 +74,8 @@ SKIP_REASONS = {
     "malformed": "not a detection with a box",
     "empty_box": "box has zero area",
     "box_outside_image": "box lies entirely outside the PV image",
+    "reference_border": "box starts at the top-left corner (int(x1) <= 1 and int(y1) <= 1): the reference "
+                        "code drops it",
     "invalid_pose": "NaN/invalid depth pose (or PV pose, for posed registration)",
     "no_depth_frame": "depth frame missing or unreadable",
     "no_depth_pixels": "too few valid depth pixels register into the box",
@@ -109,6 +117,7 @@ class LiftReport:
     n_files: int = 0                       # detection files in it (read or skipped)
     files_skipped: dict[str, list[str]] = field(default_factory=dict)  # FILE_REASONS key -> file names
     n_pv_frames: int = 0                   # PV frames of the recording
+    frames_without_file: int = 0           # PV frames without a detection file in ``source`` (read as none)
     frames_without_pose: dict[str, int] = field(default_factory=dict)  # pose file -> PV frames without a
     #                                        valid pose in it, for the poses the lift needs (only when > 0)
 
@@ -133,6 +142,9 @@ class LiftReport:
                 if ex.reason == reason:
                     what = f"ts {ex.timestamp}" + (f", instance {ex.instance}" if ex.instance is not None else "")
                     lines.append(f"            e.g. {what}" + (f" ({ex.detail})" if ex.detail else ""))
+        if self.frames_without_file:
+            lines.append(f"  PV frames without a detection file in {self.source}: {self.frames_without_file} of "
+                         f"{self.n_pv_frames} (read as frames without detections)")
         if self.files_skipped:
             lines.append(f"  detection files: {sum(map(len, self.files_skipped.values()))} of {self.n_files} "
                          f"in {self.source} skipped")
@@ -199,7 +211,14 @@ def _lift_one(ctx: _Context, state: _FrameDepth, ts: int, i: int, det: Detection
     """Lift one detection (box clipped to the image) and add its row, lifted or not."""
     cfg = ctx.cfg
     if cfg.mode == "reference":
-        picked = reference_pick(state.depth_map, box)
+        # The reference rule works on the file's box (truncated corners, not clipped to the image).
+        ref_box = reference_box((det.box.x_min, det.box.y_min, det.box.x_max, det.box.y_max))
+        if ref_box is None:
+            report.skip("reference_border", ts, det.instance, "box starts in the top-left corner (dropped "
+                        "by the reference code's int(x1) <= 1 and int(y1) <= 1 rule)")
+            rows.add(ts, i, det)
+            return
+        picked = reference_pick(state.depth_map, ref_box)
         if picked is None:
             report.skip("no_depth_pixels", ts, det.instance, "no pixel with depth in the box")
             rows.add(ts, i, det)
@@ -316,6 +335,7 @@ def _note_inputs(rec, detections, cfg: LiftConfig, report: LiftReport) -> None:
     if scan is not None:
         report.source = str(scan.folder)
         report.n_files = scan.n_files
+        report.frames_without_file = len(scan.missing)
         for reason, files in (("misnamed", scan.misnamed), ("not_pv_frame", scan.not_pv_frame)):
             if files:
                 report.files_skipped[reason] = sorted(f.name for f in files)

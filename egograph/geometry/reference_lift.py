@@ -3,7 +3,9 @@
 Every AHAT pixel is turned into a camera point (raw 0 gives the point 0, and it is *not*
 removed), all 262k points are pushed through the static rig chain into the PV image, the
 integer pixel each lands on (truncation, last write wins) gets the point, and a box takes the
-valid pixel closest (L1, in crop-local integers) to its centre. No unwrapping, so anything
+valid pixel closest (L1, in crop-local integers) to its centre, all from the box corners
+truncated to integers; boxes starting in the top-left corner (``int(x1) <= 1 and int(y1) <= 1``)
+are dropped, as the reference code drops them. No unwrapping, so anything
 farther than the alias distance (1.055 m) comes out about 1 m (or 2 m...) too close to the
 camera.
 
@@ -72,15 +74,30 @@ def reference_depth_map(raw: np.ndarray, xy1: np.ndarray, norms: np.ndarray, sca
     return out
 
 
-def reference_pick(depth_map: np.ndarray, box: Sequence[float]) -> tuple[np.ndarray, int] | None:
-    """The reference code's choice of one AHAT point for a box (x1, y1, x2, y2), PV pixels.
+def reference_box(box: Sequence[float]) -> tuple[int, int, int, int] | None:
+    """The box as the reference code holds it: each corner truncated towards zero (``int(float(s))``
+    when it reads the association file), or None when the reference code drops it — its border
+    rule drops every box with ``int(x1) <= 1 and int(y1) <= 1`` (a proposal starting in the image's
+    top-left corner, which SAM returns for whole-image masks). PV pixels."""
+    x1, y1, x2, y2 = (int(float(v)) for v in box)
+    if x1 <= 1 and y1 <= 1:
+        return None
+    return x1, y1, x2, y2
 
-    In the crop ``map[int(y1):int(y2), int(x1):int(x2)]``, among pixels with non-zero z, the
-    first (row-major) minimising ``|row - int((y2-y1)/2)| + |col - int((x2-x1)/2)|``
-    (crop-local). Returns (AHAT camera point (3,), pixels with depth in the crop), or None.
+
+def reference_pick(depth_map: np.ndarray, box: Sequence[int]) -> tuple[np.ndarray, int] | None:
+    """The reference code's choice of one AHAT point for an integer box (x1, y1, x2, y2) as
+    :func:`reference_box` gives it, PV pixels.
+
+    In the crop ``map[y1:y2, x1:x2]`` (Python slicing, as the reference code's, also for a corner
+    outside the image), among pixels with non-zero z, the first (row-major) minimising
+    ``|row - int((y2-y1)/2)| + |col - int((x2-x1)/2)|`` (crop-local). The centre is taken from the
+    truncated corners: on a fractional box that is the reference's pixel, where halving the float
+    size can pick its neighbour. Returns (AHAT camera point (3,), pixels with depth in the crop),
+    or None.
     """
-    x1, y1, x2, y2 = box
-    crop = depth_map[int(y1):int(y2), int(x1):int(x2)]
+    x1, y1, x2, y2 = (int(v) for v in box)
+    crop = depth_map[y1:y2, x1:x2]
     rows, cols = np.nonzero(crop[..., 2] != 0)
     if len(rows) == 0:
         return None

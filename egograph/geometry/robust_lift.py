@@ -36,6 +36,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from egograph.geometry.ahat_model import pixel_lookup
 from egograph.geometry.chains import FrameChains
 from egograph.geometry.config import MIN_RANGE_M, LiftConfig
 from egograph.geometry.hl2ss import (
@@ -117,7 +118,8 @@ class RobustContext:
     alias_m: float
     m_per_raw: float                 # metres of range per raw unit (depth_factor / scale)
     dirs: np.ndarray                 # (H, W, 3) float32 unit ray directions, AHAT camera
-    pad_px: int | None = None        # region padding (AHAT px); None = search the whole frame
+    pad_px: int | None = None        # region padding (AHAT px) of the pinhole bound; None = the ray-table bound
+    lookup: object | None = None     # ahat_model.PixelLookup when the pinhole intrinsics are too far off
     raycaster: object | None = None  # open3d.t.geometry.RaycastingScene of the HoloLens mesh
 
 
@@ -143,8 +145,11 @@ def robust_context(rec, cfg: LiftConfig, notes: list[str]) -> RobustContext:
     if residual <= MAX_PINHOLE_RESIDUAL_PX:
         ctx.pad_px = int(math.ceil(residual)) + REGION_PAD_PX
     else:
-        notes.append(f"AHAT pinhole intrinsics off by {residual:.0f} px; "
-                     "every box searches the whole depth frame")
+        # A real (fisheye) AHAT: intrinsics.bin is a wide viewing pinhole, not the lens. Bound the
+        # region through the ray table instead (ahat_model.pixel_lookup).
+        ctx.lookup = pixel_lookup(ahat)
+        notes.append(f"AHAT pinhole intrinsics off by {residual:.0f} px (a fisheye lens): box regions "
+                     "bounded through the ray table")
     if cfg.use_mesh:
         ctx.raycaster = _mesh_raycaster(rec, notes)
     else:
@@ -165,7 +170,7 @@ def _ahat_region(ctx: RobustContext, frame: FrameChains, box: np.ndarray, reach_
     """
     h, w = ctx.rec.ahat.uv2xy.shape[:2]
     if ctx.pad_px is None:
-        return 0, h, 0, w
+        return _ahat_region_rays(ctx, frame, box, reach_m) if ctx.lookup is not None else (0, h, 0, w)
     x1, y1, x2, y2 = box
     corners = np.array([[x1, y1], [x2, y1], [x1, y2], [x2, y2]], dtype=np.float64)
     pv_pts = np.concatenate([pv_unproject(corners, np.full(4, d), ctx.rec.pv.intrinsics)
@@ -175,6 +180,39 @@ def _ahat_region(ctx: RobustContext, frame: FrameChains, box: np.ndarray, reach_
         return 0, h, 0, w
     uv, _ = ahat_project(cam, ctx.rec.ahat.intrinsics)
     pad = ctx.pad_px
+    c0 = max(int(math.floor(uv[:, 0].min())) - pad, 0)
+    c1 = min(int(math.ceil(uv[:, 0].max())) + pad, w)
+    r0 = max(int(math.floor(uv[:, 1].min())) - pad, 0)
+    r1 = min(int(math.ceil(uv[:, 1].max())) + pad, h)
+    return r0, max(r1, r0), c0, max(c1, c0)
+
+
+REGION_EDGE_SAMPLES = 5     # points per box edge for the ray-table bound (a fisheye bends straight edges)
+REGION_DEPTH_SAMPLES = 8    # depths per point, geometric from REGION_NEAR_M to the far end
+
+
+def _ahat_region_rays(ctx: RobustContext, frame: FrameChains, box: np.ndarray,
+                      reach_m: float) -> tuple[int, int, int, int]:
+    """:func:`_ahat_region` for a lens that is no pinhole: points along the box's edges at depths
+    from near to far, projected through the real rays (:class:`~egograph.geometry.ahat_model.PixelLookup`),
+    bound the region; the sampling gaps and the lookup's error are covered by the padding. An empty
+    rectangle when no sampled point is in the AHAT field."""
+    h, w = ctx.rec.ahat.uv2xy.shape[:2]
+    x1, y1, x2, y2 = box
+    t = np.linspace(0.0, 1.0, REGION_EDGE_SAMPLES)
+    edges = np.concatenate([np.stack([x1 + (x2 - x1) * t, np.full_like(t, y1)], 1),
+                            np.stack([x1 + (x2 - x1) * t, np.full_like(t, y2)], 1),
+                            np.stack([np.full_like(t, x1), y1 + (y2 - y1) * t], 1),
+                            np.stack([np.full_like(t, x2), y1 + (y2 - y1) * t], 1)])
+    far = max(reach_m, ctx.alias_m) + 0.1
+    depths = np.geomspace(REGION_NEAR_M, far, REGION_DEPTH_SAMPLES)
+    pv_pts = np.concatenate([pv_unproject(edges, np.full(len(edges), d), ctx.rec.pv.intrinsics) for d in depths])
+    uv = ctx.lookup.project(transform_points(pv_pts, frame.pvcam_to_ahat))
+    uv = uv[np.isfinite(uv).all(1)]
+    if not len(uv):
+        return 0, 0, 0, 0
+    # between samples a bent edge strays at most a few pixels; 2 more than the pinhole padding
+    pad = REGION_PAD_PX + 2
     c0 = max(int(math.floor(uv[:, 0].min())) - pad, 0)
     c1 = min(int(math.ceil(uv[:, 0].max())) + pad, w)
     r0 = max(int(math.floor(uv[:, 1].min())) - pad, 0)

@@ -4,10 +4,13 @@ Layout of one sequence's annotation folder (all tables accept comma and/or
 whitespace separators, see :mod:`egograph.io.textio`)::
 
     labels.csv               one instance name per line; line k is instance id k (zero-based)
+                             (``label.csv`` is read too: the release's text spells it so)
     3d_center_annot.txt      t_start t_end instance_id x y z location_id
     motion_state_annot.txt   instance_id t_start t_end          (stationary intervals)
     2d_bbox_annot/<k>.txt    ts x_min y_min x_max y_max         (boxes of instance k)
-    svoe.txt                 instance_id ts x_min y_min x_max y_max   (enrollment box)
+    svoe.txt                 instance_id ts x_min y_min x_max y_max   (enrollment box; it may
+                             also sit in a separate enrollment tree, see
+                             :func:`egograph.io.recording.locate_svoe`)
 
 Conventions: timestamps are HoloLens ticks (100 ns, ~18 digits) kept as exact
 Python ints; time intervals are inclusive at both ends; 3D centres are in the
@@ -47,6 +50,8 @@ from egograph.io.textio import (
 )
 
 LABELS_FILE = "labels.csv"
+# The release's tree says labels.csv, its text label.csv: both are read, labels.csv first.
+LABELS_FILES = (LABELS_FILE, "label.csv")
 CENTERS_FILE = "3d_center_annot.txt"
 MOTION_FILE = "motion_state_annot.txt"
 BBOX_DIR = "2d_bbox_annot"
@@ -205,6 +210,33 @@ def _check_limit(path: Path, lineno: int | None, instance: int, num_instances: i
         raise InputError(
             path, f"instance id {instance} out of range: labels.csv has {num_instances} labels", lineno
         )
+
+
+# --------------------------------------------------------------------------- finding files
+
+
+def ci_child(parent: str | Path, name: str) -> Path:
+    """``parent/name``; when that does not exist, the one entry of ``parent`` whose name equals
+    ``name`` ignoring case (``Annotations`` for ``annotations`` on a case-sensitive file system).
+    ``parent/name`` again when there is none or more than one, so callers test ``exists()``."""
+    parent = Path(parent)
+    path = parent / name
+    if path.exists() or not parent.is_dir():
+        return path
+    try:
+        same = [c for c in parent.iterdir() if c.name.lower() == name.lower()]
+    except OSError:
+        return path
+    return same[0] if len(same) == 1 else path
+
+
+def find_labels_file(folder: str | Path) -> Path | None:
+    """The labels file of an annotation folder: ``labels.csv`` or ``label.csv`` (either case), or None."""
+    for name in LABELS_FILES:
+        path = ci_child(folder, name)
+        if path.is_file():
+            return path
+    return None
 
 
 # --------------------------------------------------------------------------- labels.csv
@@ -449,19 +481,20 @@ def read_mvpe_photos(path: str | Path) -> dict[str, list[Path]]:
 # --------------------------------------------------------------------------- whole folder
 
 
-def load_annotations(path: str | Path, box_format: str = "xyxy") -> Annotations:
+def load_annotations(path: str | Path, box_format: str = "xyxy", svoe_path: str | Path | None = None) -> Annotations:
     """Read a sequence's annotation folder.
 
-    ``labels.csv`` is required; the other files are optional (missing -> empty).
-    Instance ids beyond the labels are an InputError naming file and line.
+    ``labels.csv`` (or ``label.csv``) is required; the other files are optional (missing -> empty;
+    whoever needs one says so). ``svoe_path``: the ``svoe.txt`` to read when it is not in the folder
+    (a separate enrollment tree). Instance ids beyond the labels are an InputError naming file and line.
     """
     path = Path(path)
     check_box_format(box_format)
     if not path.is_dir():
         raise InputError(path, "annotation folder not found")
-    labels_path = path / LABELS_FILE
-    if not labels_path.is_file():
-        raise InputError(path, f"annotation folder has no {LABELS_FILE}")
+    labels_path = find_labels_file(path)
+    if labels_path is None:
+        raise InputError(path, f"annotation folder has no labels file (tried {', '.join(LABELS_FILES)})")
     labels = read_labels(labels_path)
     n = len(labels)
     ann = Annotations(labels=labels)
@@ -471,8 +504,9 @@ def load_annotations(path: str | Path, box_format: str = "xyxy") -> Annotations:
         ann.motion = read_motion_states(path / MOTION_FILE, num_instances=n)
     if (path / BBOX_DIR).exists():
         ann.boxes = read_bbox_annot_dir(path / BBOX_DIR, box_format, num_instances=n)
-    if (path / SVOE_FILE).exists():
-        ann.svoe = read_svoe(path / SVOE_FILE, box_format, num_instances=n)
+    svoe = Path(svoe_path) if svoe_path is not None else path / SVOE_FILE
+    if svoe.exists():
+        ann.svoe = read_svoe(svoe, box_format, num_instances=n)
     return ann
 
 

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+import re
 import warnings
 from pathlib import Path
 
@@ -30,6 +31,31 @@ def pose_validity(poses: np.ndarray, tol: float = 1e-3) -> np.ndarray:
 
 
 INVALID_POSE_POLICIES = ("error", "skip")
+_INT_KEY = re.compile(r"[+-]?[0-9]+")
+
+
+def _read_json(path: Path):
+    """The JSON document of ``path``; InputError naming the file for anything unreadable: missing,
+    a folder or otherwise not readable, not UTF-8 (a UTF-8 byte order mark is allowed), not JSON,
+    nested too deeply to parse."""
+    try:
+        raw = path.read_bytes()
+    except FileNotFoundError:
+        raise InputError(path, "pose file missing") from None
+    except IsADirectoryError:
+        raise InputError(path, "pose file expected, found a folder") from None
+    except OSError as err:
+        raise InputError(path, f"cannot read pose file: {err.strerror or err}") from None
+    try:
+        text = raw.decode("utf-8-sig")
+    except UnicodeDecodeError as err:
+        raise InputError(path, f"not a JSON pose file: not UTF-8 text ({err.reason} at byte {err.start})") from None
+    try:
+        return json.loads(text)
+    except json.JSONDecodeError as exc:
+        raise InputError(path, f"not valid JSON: {exc.msg}", exc.lineno) from None
+    except RecursionError:
+        raise InputError(path, "not a pose file: JSON nested too deeply") from None
 
 
 def read_pose_json(path: str | Path, invalid: str = "error") -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -42,20 +68,15 @@ def read_pose_json(path: str | Path, invalid: str = "error") -> tuple[np.ndarray
     path = Path(path)
     if invalid not in INVALID_POSE_POLICIES:
         raise ValueError(f"invalid pose policy {invalid!r}; expected one of {INVALID_POSE_POLICIES}")
-    try:
-        data = json.loads(path.read_text())
-    except FileNotFoundError:
-        raise InputError(path, "pose file missing") from None
-    except json.JSONDecodeError as exc:
-        raise InputError(path, f"not valid JSON: {exc.msg}", exc.lineno) from None
+    data = _read_json(path)
     if not isinstance(data, dict) or not data:
         raise InputError(path, "expected a non-empty JSON object {timestamp: 4x4 matrix}")
     keys = []
     for k in data:
-        try:
-            keys.append((int(k), k))
-        except ValueError:
-            raise InputError(path, f"key {k!r} is not an integer timestamp") from None
+        # ASCII digits only: int() would also take "1_000", " 12 " and other scripts' digits
+        if not _INT_KEY.fullmatch(k):
+            raise InputError(path, f"key {k[:40]!r} is not an integer timestamp")
+        keys.append((int(k), k))
     keys.sort()
     ts = np.array([k for k, _ in keys], dtype=np.int64)
     if len(np.unique(ts)) != len(ts):
@@ -64,7 +85,7 @@ def read_pose_json(path: str | Path, invalid: str = "error") -> tuple[np.ndarray
     for i, (_, k) in enumerate(keys):
         try:
             m = np.array(data[k], dtype=np.float64)
-        except (TypeError, ValueError):
+        except (TypeError, ValueError, OverflowError):  # OverflowError: an integer beyond float range
             raise InputError(path, f"pose {k}: not a numeric 4x4 matrix") from None
         if m.shape != (4, 4):
             raise InputError(path, f"pose {k}: expected 4x4, got shape {m.shape}")
@@ -72,10 +93,13 @@ def read_pose_json(path: str | Path, invalid: str = "error") -> tuple[np.ndarray
     valid = pose_validity(poses)
     if not valid.all():
         bad = [str(t) for t in ts[~valid][:5]]
-        msg = f"{(~valid).sum()} invalid pose(s) (NaN, singular or not rigid), first at {', '.join(bad)}"
+        zero = int((np.nan_to_num(poses[~valid], nan=1.0) == 0).all(axis=(1, 2)).sum())
+        kind = f"; {zero} all-zero, as hl2ss writes for untracked frames" if zero else ""
+        msg = (f"{(~valid).sum()} of {len(ts)} invalid pose(s) (NaN, singular or not rigid{kind}), "
+               f"first at {', '.join(bad)}")
         if invalid == "error":
-            raise InputError(path, msg + "; use --set io.invalid_poses=skip to drop those frames")
-        warnings.warn(f"{path}: {msg}; those frames are marked invalid", stacklevel=2)
+            raise InputError(path, msg + " (io.invalid_poses=skip, the default without --strict, skips those frames)")
+        warnings.warn(f"{path}: {msg}; those frames are skipped", stacklevel=2)
         poses[~valid] = np.nan
     return ts, poses, valid
 

@@ -26,7 +26,7 @@ from egograph.eval.intervals import PredictedInterval
 from egograph.eval.loader import IGNORED_REASONS, FramePredictions, evaluate_loaded, load_sequence
 from egograph.eval.report import EvalReport
 from egograph.io.recording import Recording
-from egograph.steps.recording import require_annotations
+from egograph.steps.recording import labels_path, require_annotations
 
 
 def frame_predictions(per_frame: dict, timestamps) -> FramePredictions:
@@ -80,14 +80,19 @@ def evaluate(rec: Recording, results: str | Path | TrackResult, name: str | None
     ``strict`` refused (InputError), before anything is scored.
     """
     ann = require_annotations(rec, "labels.csv, 3d_center_annot.txt")
+    centers = ann / "3d_center_annot.txt"
     if isinstance(results, TrackResult):
         result = results
-        seq = load_sequence(rec.seq_dir / "pv_pose.json", ann / "3d_center_annot.txt", None, ann / "labels.csv")
+        seq = load_sequence(rec.seq_dir / "pv_pose.json", centers, None, labels_path(rec))
         seq.predictions = frame_predictions(result.per_frame, seq.timestamps)
     else:
+        seq = load_sequence(rec.seq_dir / "pv_pose.json", centers, results, labels_path(rec))
+    if not seq.gt:  # every score would be 0 of 0
+        raise InputError(centers, "no annotated interval (t_start t_end instance_id x y z location_id): nothing "
+                                  "to score against")
+    if not isinstance(results, TrackResult):
         from egograph.steps.track import read_result
 
-        seq = load_sequence(rec.seq_dir / "pv_pose.json", ann / "3d_center_annot.txt", results, ann / "labels.csv")
         for line in check_predictions(results, seq.predictions, strict):
             warnings.warn(line, stacklevel=2)
         result = read_result(results, rec)

@@ -11,10 +11,13 @@ from egograph.io.recording import Recording
 def open_recording(path: str | Path, cfg, *, calibration: str | Path | None = None,
                    annotations: str | Path | None = None, sequence: str | None = None,
                    poses: str | Path | None = None) -> Recording:
-    """The recording at ``path`` read with ``cfg.io``; ``poses``: a folder written by
-    ``egograph refine`` whose poses replace the recording's."""
+    """The recording at ``path`` read with ``cfg.io`` (pose policy, depth sync tolerance, strictness,
+    enrollment folders); ``poses``: a folder written by ``egograph refine`` whose poses replace the
+    recording's."""
+    io = cfg.io
     rec = Recording.open(path, sequence=sequence, calibration=calibration, annotations=annotations,
-                         invalid_poses=cfg.io.invalid_poses, depth_factor=cfg.io.depth_factor or None)
+                         invalid_poses=io.invalid_poses, depth_factor=io.depth_factor or None, strict=io.strict,
+                         depth_sync_ms=io.depth_sync_ms, svoe_dir=io.svoe_dir or None, mvpe_dir=io.mvpe_dir or None)
     if poses is not None:
         from egograph.poses.refine import apply_poses
 
@@ -22,13 +25,19 @@ def open_recording(path: str | Path, cfg, *, calibration: str | Path | None = No
     return rec
 
 
+def labels_path(rec: Recording) -> Path | None:
+    """The recording's labels file (``labels.csv`` or ``label.csv``); None without annotations."""
+    from egograph.io.annotations import find_labels_file
+
+    return None if rec.annotation_dir is None else find_labels_file(rec.annotation_dir)
+
+
 def labels(rec: Recording) -> list[str] | None:
-    """Instance names (index = id) from the recording's ``labels.csv``; None without annotations."""
+    """Instance names (index = id) from the recording's labels file; None without annotations."""
     from egograph.io.annotations import read_labels
 
-    if rec.annotation_dir is None:
-        return None
-    return read_labels(rec.annotation_dir / "labels.csv")
+    path = labels_path(rec)
+    return None if path is None else read_labels(path)
 
 
 def n_instances(rec: Recording) -> int | None:
@@ -38,5 +47,7 @@ def n_instances(rec: Recording) -> int | None:
 
 def require_annotations(rec: Recording, what: str) -> Path:
     if rec.annotation_dir is None:
-        raise InputError(rec.seq_dir, f"no annotations found ({what}); pass --annotations DIR")
+        tried = next((lk.tried for lk in rec.lookups if lk.what == "annotations"), [])
+        raise InputError(rec.seq_dir, f"no annotations found ({what}); tried {', '.join(tried[:6]) or 'nothing'}; "
+                                      f"pass --annotations DIR")
     return rec.annotation_dir

@@ -34,12 +34,37 @@ def regt(rec: Recording, cfg, out: str | Path | None = None, *, joint: bool = Fa
 
     ann_dir = require_annotations(rec, "motion_state_annot.txt, 2d_bbox_annot/")
     ann = load_annotations(ann_dir, box_format=cfg.io.box_format)
+    check_regt_inputs(rec, ann_dir, ann)
     obs, report = lift_recording(rec, box_detections(ann), cfg.lift, progress=progress, n_instances=n_instances(rec))
     est, jp = regt_estimates(rec, ann, obs, cfg, joint=joint, progress=progress)
     result = RegtResult(est, audit_text(est, cfg.regt), report, jp)
     if out is not None:
         write_regt(out, rec, result, cfg, joint)
     return result
+
+
+def check_regt_inputs(rec: Recording, ann_dir: Path, ann) -> None:
+    """What ``regt`` reads, before anything is lifted: InputError (naming the file) without a
+    stationary interval (``motion_state_annot.txt``: nothing to re-estimate) or without a box
+    annotation (``2d_bbox_annot/``: nothing to lift); a warning (under ``rec.strict`` an
+    InputError) without a given centre (``3d_center_annot.txt`` missing or empty: nothing to audit)."""
+    from egograph.core.errors import InputError
+    from egograph.io.annotations import BBOX_DIR, CENTERS_FILE, MOTION_FILE
+    from egograph.io.recording import report_problem
+
+    if not ann.motion:
+        what = "has no stationary interval" if (ann_dir / MOTION_FILE).exists() else "missing"
+        raise InputError(ann_dir / MOTION_FILE, f"{what}: regt re-estimates the centre of each stationary "
+                                                "interval (instance_id t_start t_end), so there is nothing to do")
+    if not any(ann.boxes.values()):
+        folder = ann_dir / BBOX_DIR
+        what = "no box in any <instance_id>.txt" if folder.is_dir() else "folder missing"
+        raise InputError(folder, f"{what}: regt lifts the annotated 2D boxes, so there is nothing to lift")
+    centers = ann_dir / CENTERS_FILE
+    if not ann.centers:
+        what = "empty (no row)" if centers.exists() else "missing"
+        report_problem(rec.strict, centers, f"{what}: the re-estimates are written, but there is no given centre "
+                                            "to audit them against")
 
 
 def regt_estimates(rec: Recording, ann, obs, cfg, joint: bool = False, progress: bool = False):

@@ -10,6 +10,9 @@ from egograph.core.config import Checked, knob, rule_error, section
 DETECTION_SETS = ("svoe", "mvpe")
 """The simulated front-ends, one detection set each (``detections.svoe``, ``detections.mvpe``)."""
 
+AHAT_DEVICES = ("hl2-a", "hl2-b", "pinhole")
+"""AHAT geometries of the generator: the real calibrations of egograph.io.devices, and a pinhole."""
+
 SCORE_KNOBS = ("true_score", "lookalike_score", "clutter_score", "other_score")
 """Front-end knobs holding ``[mean, std]`` of a similarity score."""
 
@@ -27,6 +30,19 @@ class SceneConfig(Checked):
     mesh_noise: float = knob(0.01, "std of the HoloLens scene mesh vertex noise, metres", min=0.0)
     mesh_edge: float = knob(0.08, "edge length the scene is subdivided to before the mesh noise, metres", gt=0.0)
     mesh_triangles: int = knob(6000, "triangle budget of the decimated HoloLens mesh", min=1)
+    n_props: int = knob(12, "untracked objects (5-30 cm) standing on the surfaces all recording", min=0)
+    props_in_mesh: float = knob(0.5, "share of the untracked objects that are in the HoloLens mesh (the others came after "
+                                "the room was mapped)", min=0.0, max=1.0)
+    mesh_baked_instances: float = knob(0.4, "probability that an instance is in the HoloLens mesh at its first place "
+                                       "(it stood there while the room was mapped; it stays in the mesh after it moves)",
+                                       min=0.0, max=1.0)
+    mesh_hole_patch: float = knob(0.3, "side of the patches the mesh's holes come in, metres", gt=0.0)
+    mesh_hole_dark: float = knob(0.6, "share of the patches of dark surfaces (albedo < 0.25) missing from the mesh",
+                                 min=0.0, max=1.0)
+    mesh_hole_grazing: float = knob(0.6, "share of the patches seen only at grazing angles or from behind missing from the mesh",
+                                    min=0.0, max=1.0)
+    mesh_grazing_deg: float = knob(10.0, "a surface is seen at a grazing angle when the line to the room centre at head "
+                                   "height is within this angle of it, degrees", min=0.0, max=90.0)
 
 
 @dataclass
@@ -37,6 +53,10 @@ class WearerConfig(Checked):
                              min=0.0)
     carry_distance: list[float] = knob([0.3, 0.6], "range of hand-to-eye distance while carrying, metres",
                                        gt=0.0, length=2, ordered=True)
+    watch_time: list[float] = knob([0.6, 1.2], "range of time the eyes stay on an object just put down, s",
+                                   min=0.0, length=2, ordered=True)
+    approach_calm: float = knob(1.8, "no fast head turn starts in this last stretch of walking up to an object to pick up, s "
+                                "(the eyes are on it, as in egocentric video)", min=0.0)
     idle_time: list[float] = knob([0.6, 1.8], "range of look-around time after each put-down, s",
                                   min=0.0, length=2, ordered=True)
     head_turn_rate: float = knob(0.7, "fast head turns per second while looking around", min=0.0)
@@ -49,8 +69,13 @@ class WearerConfig(Checked):
 
 @dataclass
 class AhatConfig(Checked):
-    focal: float = knob(250.0, "AHAT focal length, pixels (512x512, about 90 deg field of view)", gt=0.0)
-    tilt: float = knob(15.0, "AHAT camera pitch below the head's forward direction, degrees", min=-90.0, max=90.0)
+    device: str = knob("hl2-a", "AHAT geometry: a real HoloLens 2 calibration (its per-pixel rays, about 114 px focal "
+                       "and 113 deg across with strong distortion, and its rig-node extrinsics: the camera looks about "
+                       "17 deg below the head's forward direction) or `pinhole` (focal and tilt below; the generator "
+                       "before revision 4)", choices=AHAT_DEVICES)
+    focal: float = knob(250.0, "pinhole AHAT only: focal length, pixels (512x512, about 90 deg field of view)", gt=0.0)
+    tilt: float = knob(15.0, "pinhole AHAT only: camera pitch below the head's forward direction, degrees",
+                       min=-90.0, max=90.0)
     alias_mm: float = knob(1055.0, "range at which AHAT readings wrap, mm (alias.bin; 1055 current firmware, 999 older)",
                            gt=0.0)
     depth_factor: float = knob(4.0, "raw unit: raw = range_mm / depth_factor (4 in the hl2ss version IT3DEgo used, 1 current)",

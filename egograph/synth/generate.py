@@ -37,6 +37,7 @@ from egograph.synth.sensors import (
     object_world_vertices,
     pose_errors,
     pv_camera_rays,
+    room_lamps,
     shade_hits,
     simulate_ahat,
 )
@@ -45,7 +46,7 @@ from egograph.synth.trajectory import Trajectory, make_trajectory
 TS0 = 133_400_000_000_000_000  # a HoloLens-like 100 ns tick count (2023)
 # Bumped whenever the same seed and config would render a different recording, so caches of
 # generated recordings (egograph.synth.benchset) know to regenerate.
-GENERATOR_REVISION = 3
+GENERATOR_REVISION = 4  # 4: real AHAT calibration, gaze on the hands, hand occlusion, baked mesh, fast RGB
 STREAMS = ("scene", "activity", "depth", "pose_error", "svoe", "mvpe", "textures", "mesh")
 
 
@@ -218,7 +219,8 @@ def generate(out: str | Path, cfg: SynthConfig, seed: int, progress: bool = True
     rngs = dict(zip(STREAMS, (np.random.default_rng(s) for s in np.random.SeedSequence(seed).spawn(len(STREAMS)))))
     scene = make_scene(rngs["scene"], cfg.scene)
     traj = make_trajectory(rngs["activity"], scene, cfg)
-    ahat_cal, pv_cal = make_calibration(cfg.ahat, cfg.pv)
+    headset = make_calibration(cfg.ahat, cfg.pv)
+    ahat_cal, pv_cal = headset.ahat, headset.pv
     n, k = cfg.frames, len(scene.objects)
     fps = cfg.fps
     ts = TS0 + seed * 10**11 + np.round(np.arange(n) * 1e7 / fps).astype(np.int64)
@@ -228,9 +230,10 @@ def generate(out: str | Path, cfg: SynthConfig, seed: int, progress: bool = True
     depth_offset = (cfg.ahat.time_offset_ms + rng_d.normal(0, 1.0, n)) / 1000.0 * fps  # in frames
     rig_pv = traj.rig_poses(np.arange(n, dtype=float))
     rig_depth = traj.rig_poses(np.arange(n) + depth_offset)
-    pv_cam_to_rig = invert_rigid(pv_cal.extrinsics)
-    pv_true = pv_cam_to_rig @ rig_pv
-    depth_true = rig_depth
+    # The trajectory gives head poses; the depth pose is the rig node's, PV's its camera's.
+    pv_cam_to_node = invert_rigid(pv_cal.extrinsics)
+    pv_true = pv_cam_to_node @ headset.node_to_head @ rig_pv
+    depth_true = headset.node_to_head @ rig_depth
     ang_speed = traj.angular_speed_dps()
     errs, jumps = pose_errors(rngs["pose_error"], n, fps, ang_speed, cfg.pose_error,
                               pivot=np.array([scene.room_size[0] / 2, 1.0, scene.room_size[1] / 2]))
@@ -241,9 +244,11 @@ def generate(out: str | Path, cfg: SynthConfig, seed: int, progress: bool = True
                                                         cfg.detections.mvpe.clutter_per_instance))
     twins = np.array([o.twin for o in scene.objects])
     textures = Textures(rngs["textures"])
+    lamps = room_lamps(rngs["textures"], scene.room_size)
 
     ahat_dirs, ahat_norms = ahat_camera_rays(ahat_cal)
-    ahat_cam_to_rig = invert_rigid(ahat_cal.extrinsics)
+    ahat_cam_to_node = invert_rigid(ahat_cal.extrinsics)
+    ray_valid = headset.ray_valid.reshape(-1)
     ds = cfg.pv.visibility_downsample
     vis_dirs, vis_shape = pv_camera_rays(pv_cal, ds)
     rgb_dirs, rgb_shape = pv_camera_rays(pv_cal, 1) if cfg.pv.rgb else (None, None)
@@ -265,8 +270,8 @@ def generate(out: str | Path, cfg: SynthConfig, seed: int, progress: bool = True
         png_depth = [cv2.IMWRITE_PNG_COMPRESSION, 1]
         for i in tqdm(range(n), desc=f"synth {cfg.sequence}", unit="frame", disable=not progress, mininterval=1.0):
             obj_pos, obj_yaw = traj.objects_at(i)
-            hand, hand_on = traj.hand_at(i)
-            geom = build_raycasting_scene(scene, obj_pos, obj_yaw, hand if hand_on else None)
+            hand, hand_yaw, hand_on = traj.hand_at(i)
+            geom = build_raycasting_scene(scene, obj_pos, obj_yaw, (hand, hand_yaw) if hand_on else None)
             pose = pv_true[i]
             origin = pose[3, :3]
             dirs = vis_dirs @ pose[:3, :3]
@@ -310,13 +315,14 @@ def generate(out: str | Path, cfg: SynthConfig, seed: int, progress: bool = True
             # AHAT depth at its own capture time.
             fd = i + depth_offset[i]
             obj_d, yaw_d = traj.objects_at(fd)
-            hand_d, hand_d_on = traj.hand_at(fd)
-            geom_d = build_raycasting_scene(scene, obj_d, yaw_d, hand_d if hand_d_on else None)
-            raw = simulate_ahat(rng_d, scene, geom_d, ahat_cam_to_rig @ rig_depth[i], ahat_dirs, ahat_norms, cfg.ahat)
+            hand_d, hand_yaw_d, hand_d_on = traj.hand_at(fd)
+            geom_d = build_raycasting_scene(scene, obj_d, yaw_d, (hand_d, hand_yaw_d) if hand_d_on else None)
+            raw = simulate_ahat(rng_d, scene, geom_d, ahat_cam_to_node @ depth_true[i], ahat_dirs, ahat_norms, cfg.ahat,
+                                ray_valid)
             cv2.imwrite(str(seq_dir / "depth_ahat" / f"{ts[i]}.png"), raw, png_depth)
             if cfg.pv.rgb:
                 d = rgb_dirs @ pose[:3, :3]
-                col = shade_hits(scene, textures, cast(geom, origin, d), origin, d, obj_pos, obj_yaw)
+                col = shade_hits(scene, textures, cast(geom, origin, d), origin, d, obj_pos, obj_yaw, lamps)
                 img = (col.reshape(rgb_shape + (3,)) * 255).astype(np.uint8)
                 cv2.imwrite(str(seq_dir / "pv" / f"{ts[i]}.png"), cv2.cvtColor(img, cv2.COLOR_RGB2BGR), png_rgb)
 
@@ -342,7 +348,8 @@ def _write_outputs(tmp: Path, cfg: SynthConfig, seed: int, scene: Scene, traj: T
     write_pose_json(seq_dir / "pv_pose.json", ts, pv_rep)
     write_pose_json(seq_dir / "depth_ahat_pose.json", ts, depth_rep)
     (seq_dir / "mesh").mkdir()
-    mesh = hololens_mesh(rngs["mesh"], scene, cfg.scene)
+    first_places = [object_world_vertices(scene, j, traj.obj_pos[0, j], traj.obj_yaw[0, j]) for j in range(k)]
+    mesh, baked = hololens_mesh(rngs["mesh"], scene, cfg.scene, first_places, cfg.wearer.head_height)
     o3d.io.write_triangle_mesh(str(seq_dir / "mesh" / "scene.ply"), mesh, write_ascii=False)
     write_ahat_calibration(tmp / "calibrations" / "rm_depth_ahat", ahat_cal)
     write_pv_calibration(tmp / "calibrations" / "personal_video", pv_cal)
@@ -383,6 +390,10 @@ def _write_outputs(tmp: Path, cfg: SynthConfig, seed: int, scene: Scene, traj: T
         "objects": [{"name": o.name, "shape": o.shape, "size": o.size.tolist(), "color": o.color.tolist(),
                      "albedo": o.albedo, "twin": o.twin} for o in scene.objects],
         "surfaces": [{"name": s.name, "center": s.center.tolist()} for s in scene.surfaces],
+        # in the HoloLens mesh at their first place (frame 0), and after they moved
+        "instances_in_mesh": [int(j) for j in baked],
+        "untracked_objects": [{"name": p.name, "shape": p.shape, "size": p.size.tolist(), "center": p.center.tolist(),
+                               "albedo": p.albedo, "in_mesh": p.in_mesh} for p in scene.props],
         "moves": [{"instance": m.instance, "pick_frame": m.pick_frame, "place_frame": m.place_frame,
                    "src": m.src.tolist(), "dst": m.dst.tolist()} for m in traj.moves],
         "relocalisation_jump_frames": [int(j) for j in jumps],

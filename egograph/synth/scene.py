@@ -77,16 +77,33 @@ class ObjectModel:
 
 
 @dataclass
+class Prop:
+    """An untracked object (5-30 cm) standing on a surface all recording: static scene, maybe in the mesh."""
+
+    name: str
+    shape: str
+    size: np.ndarray     # (3,) full extent x, y, z, metres
+    center: np.ndarray   # (3,) world, metres
+    yaw: float           # radians about world y
+    color: np.ndarray
+    albedo: float
+    in_mesh: bool        # the HoloLens mapped it (False: it came after the mapping)
+
+
+@dataclass
 class Scene:
     room_size: np.ndarray
     parts: list[Part]
     surfaces: list[Surface]
     objects: list[ObjectModel]
+    props: list[Prop]
     static_vertices: np.ndarray
     static_triangles: np.ndarray
     static_tri_albedo: np.ndarray   # (T,) per static triangle
     static_tri_color: np.ndarray    # (T, 3)
 
+
+DARK_ALBEDO = 0.15  # infrared reflectance of dark surfaces (AHAT config: dark_invalid below 0.25)
 
 # name, shape, size (x, y, z) metres, base colour, albedo
 CATALOGUE = [
@@ -128,7 +145,12 @@ def _furniture(rng: np.random.Generator, w: float, d: float, h: float) -> tuple[
     def shelf(name, cx, cz, sx, sz, boards, front):
         color = np.array([0.85, 0.85, 0.82])
         height = boards[-1] + 0.4
-        parts.append(Part(name + "_back", np.array([cx, height / 2, cz + 0.5 * sz * -front[1] * -1 + 0.0]), np.array([sx, height, 0.02]) if front[0] == 0 else np.array([0.02, height, sz]), color, 0.8))
+        # The back panel stands on the wall side, opposite the open front (revision 3 put it on the
+        # open side, closing the shelf: objects on it were never visible).
+        if front[0] == 0:
+            parts.append(Part(name + "_back", np.array([cx, height / 2, cz - front[1] * sz / 2]), np.array([sx, height, 0.02]), color, 0.8))
+        else:
+            parts.append(Part(name + "_back", np.array([cx - front[0] * sx / 2, height / 2, cz]), np.array([0.02, height, sz]), color, 0.8))
         for s in (-1, 1):
             if front[0] == 0:
                 parts.append(Part(name + "_side", np.array([cx + s * sx / 2, height / 2, cz]), np.array([0.02, height, sz]), color, 0.8))
@@ -145,7 +167,11 @@ def _furniture(rng: np.random.Generator, w: float, d: float, h: float) -> tuple[
     shelf("shelf_d", jitter(0.6 * w), d - 0.2, 1.2, 0.36, (0.95, 1.4), (0, -1))
     table("table_e", 0.42, jitter(0.62 * d), 0.8, 1.4, 0.75, (1, 0))
     table("sideboard_f", jitter(0.2 * w), d - 0.27, 1.2, 0.5, 0.82, (0, -1), solid=True)
-    # Back panel of the shelf sits at the wall side.
+    # Dark surfaces return little infrared (AHAT dropouts, holes in the HoloLens mesh): a black
+    # sideboard and a dark rug.
+    parts[-1].color, parts[-1].albedo = np.array([0.12, 0.11, 0.1]), DARK_ALBEDO
+    parts.append(Part("rug", np.array([0.5 * w, 0.003, 0.55 * d]), np.array([1.6, 0.006, 1.1]),
+                      np.array([0.15, 0.13, 0.16]), DARK_ALBEDO))
     return parts, surfaces
 
 
@@ -200,29 +226,69 @@ def make_objects(rng: np.random.Generator, cfg: SceneConfig) -> list[ObjectModel
     return models
 
 
+def prop_mesh(prop: Prop) -> tuple[np.ndarray, np.ndarray]:
+    """World vertices and triangles of an untracked object."""
+    from egograph.synth.trajectory import rot_y
+
+    v, t = box_mesh((0, 0, 0), prop.size) if prop.shape == "box" else cylinder_mesh(prop.size[0] / 2, prop.size[1], 12)
+    return v @ rot_y(prop.yaw).T + prop.center, t
+
+
+def make_props(rng: np.random.Generator, cfg: SceneConfig, surfaces: list[Surface]) -> list[Prop]:
+    """Untracked objects on the surfaces, 5-30 cm on their largest side, a share of them in the mesh."""
+    props: list[Prop] = []
+    occupied: list[np.ndarray] = []
+    for j in range(cfg.n_props):
+        shape = "box" if rng.random() < 0.5 else "cylinder"
+        side = rng.uniform(0.05, 0.3)
+        size = side * np.array([rng.uniform(0.4, 1.0), rng.uniform(0.3, 1.0), rng.uniform(0.4, 1.0)])
+        size[int(rng.integers(3))] = side
+        if shape == "cylinder":
+            size[2] = size[0]
+        color = rng.uniform(0.1, 0.95, 3)
+        albedo = float(DARK_ALBEDO if rng.random() < 0.2 else rng.uniform(0.3, 0.9))
+        s = int(rng.integers(len(surfaces)))
+        spot = sample_spot_xz(rng, surfaces[s], size, occupied, cfg.min_object_gap)
+        in_mesh = bool(rng.random() < cfg.props_in_mesh)
+        yaw = float(rng.uniform(0, 2 * np.pi))
+        if spot is None:
+            continue
+        occupied.append(spot)
+        props.append(Prop(f"prop_{j}", shape, size, spot, yaw, color, albedo, in_mesh))
+    return props
+
+
 def make_scene(rng: np.random.Generator, cfg: SceneConfig) -> Scene:
     w, d, h = cfg.room_size
     parts = _room(w, d, h)
     furn, surfaces = _furniture(rng, w, d, h)
     parts += furn
     objects = make_objects(rng, cfg)
+    props = make_props(rng, cfg, surfaces)
     verts, tris, alb, col = [], [], [], []
     off = 0
-    for p in parts:
-        v, t = box_mesh(p.center, p.size)
+    meshes = [(box_mesh(p.center, p.size), p.albedo, p.color) for p in parts]
+    meshes += [(prop_mesh(p), p.albedo, p.color) for p in props]
+    for (v, t), albedo, color in meshes:
         verts.append(v)
         tris.append(t + off)
-        alb.append(np.full(len(t), p.albedo))
-        col.append(np.tile(p.color, (len(t), 1)))
+        alb.append(np.full(len(t), albedo))
+        col.append(np.tile(color, (len(t), 1)))
         off += len(v)
-    return Scene(np.array([w, d, h], float), parts, surfaces, objects,
+    return Scene(np.array([w, d, h], float), parts, surfaces, objects, props,
                  np.vstack(verts), np.vstack(tris).astype(np.int32), np.concatenate(alb), np.vstack(col))
 
 
 def sample_spot(rng: np.random.Generator, scene: Scene, surface: int, size: np.ndarray,
                 occupied: list[np.ndarray], min_gap: float, tries: int = 60) -> np.ndarray | None:
-    """A resting position (object centre) on a surface, away from occupied spots; None if full."""
-    s = scene.surfaces[surface]
+    """A resting position (object centre) on a surface, away from occupied spots and the untracked
+    objects; None if full."""
+    return sample_spot_xz(rng, scene.surfaces[surface], size, list(occupied) + [p.center for p in scene.props],
+                          min_gap, tries)
+
+
+def sample_spot_xz(rng: np.random.Generator, s: Surface, size: np.ndarray, occupied: list[np.ndarray],
+                   min_gap: float, tries: int = 60) -> np.ndarray | None:
     half = np.maximum(s.half_extent - np.array([size[0], size[2]]) / 2, 0.0)
     for _ in range(tries):
         x = s.center[0] + rng.uniform(-half[0], half[0])
@@ -257,24 +323,69 @@ def grid_box_mesh(center, size, edge: float) -> tuple[np.ndarray, np.ndarray]:
     return np.vstack(verts), np.vstack(tris)
 
 
-def hololens_mesh(rng: np.random.Generator, scene: Scene, cfg: SceneConfig):
-    """The coarse scene mesh the HoloLens would store: static scene only, noisy, decimated."""
+def _triangle_normals(v: np.ndarray, t: np.ndarray, center: np.ndarray) -> np.ndarray:
+    """Unit normals (T, 3) of the triangles of a convex solid, turned outward from ``center``."""
+    a, b, c = v[t[:, 0]], v[t[:, 1]], v[t[:, 2]]
+    n = np.cross(b - a, c - a)
+    n /= np.maximum(np.linalg.norm(n, axis=1, keepdims=True), 1e-12)
+    return n * np.where(np.einsum("ij,ij->i", n, (a + b + c) / 3 - center) < 0, -1.0, 1.0)[:, None]
+
+
+def hololens_mesh(rng: np.random.Generator, scene: Scene, cfg: SceneConfig, first_places: list[np.ndarray],
+                  head_height: float = 1.6):
+    """The coarse scene mesh the HoloLens would store -> ``(mesh, baked instance indices)``.
+
+    It holds what stood still while the headset mapped the room: the furniture, the untracked
+    objects that were there (``Prop.in_mesh``) and a share (``mesh_baked_instances``) of the
+    instances at their first place (``first_places``: world vertices per instance), which stay in the
+    mesh after they move. Holes, in patches of ``mesh_hole_patch``: dark surfaces (albedo < 0.25)
+    and surfaces seen only at grazing angles or from behind (normal within ``mesh_grazing_deg`` of
+    perpendicular to the line to the room centre at head height, or facing away from it). Then
+    centimetre vertex noise and decimation.
+    """
     import open3d as o3d
 
-    verts, tris = [], []
-    off = 0
-    for p in scene.parts:
-        v, t = grid_box_mesh(p.center, p.size, cfg.mesh_edge)
-        verts.append(v)
-        tris.append(t + off)
-        off += len(v)
-    mesh = o3d.geometry.TriangleMesh(o3d.utility.Vector3dVector(np.vstack(verts)),
-                                     o3d.utility.Vector3iVector(np.vstack(tris).astype(np.int32)))
-    mesh = mesh.merge_close_vertices(1e-6)
-    v = np.asarray(mesh.vertices)
-    mesh.vertices = o3d.utility.Vector3dVector(v + rng.normal(0, cfg.mesh_noise, v.shape))
-    mesh = mesh.simplify_quadric_decimation(cfg.mesh_triangles)
+    eye = np.array([scene.room_size[0] / 2, head_height, scene.room_size[1] / 2])
+    baked = [k for k in range(len(first_places)) if rng.random() < cfg.mesh_baked_instances]
+    solids = [(grid_box_mesh(p.center, p.size, cfg.mesh_edge), p.center, p.albedo) for p in scene.parts]
+    solids += [(prop_mesh(p), p.center, p.albedo) for p in scene.props if p.in_mesh]
+    solids += [((first_places[k], scene.objects[k].triangles), first_places[k].mean(0), scene.objects[k].albedo)
+               for k in baked]
+    # One random number per hole patch (a lattice, like the textures), so holes are contiguous.
+    lattice = rng.random(32 ** 3)
+    cos_grazing = np.sin(np.radians(cfg.mesh_grazing_deg))
+    meshes = {"room": [], "small": []}
+    for n_part, ((v, t), center, albedo) in enumerate(solids):
+        cen = v[t].mean(1)
+        n = _triangle_normals(v, t, center)
+        view = eye - cen
+        cos = np.einsum("ij,ij->i", n, view) / np.maximum(np.linalg.norm(view, axis=1), 1e-9)
+        q = np.floor(cen / cfg.mesh_hole_patch).astype(np.int64) & 31
+        u = lattice[(q[:, 0] * 32 + q[:, 1]) * 32 + q[:, 2]]
+        hole = (cos < cos_grazing) & (u < cfg.mesh_hole_grazing)
+        if albedo < 0.25:
+            hole |= u < cfg.mesh_hole_dark
+        # Small solids (untracked objects, baked instances) are kept at their own resolution: the
+        # decimation would collapse them first, while the HoloLens keeps them as blobs.
+        meshes["room" if n_part < len(scene.parts) else "small"].append((v, t[~hole]))
+    out = None
+    n_small = sum(len(t) for _, t in meshes["small"])
+    for key, budget in (("room", max(cfg.mesh_triangles - n_small, 1)), ("small", None)):
+        if not meshes[key]:
+            continue
+        offs = np.cumsum([0] + [len(v) for v, _ in meshes[key]])
+        mesh = o3d.geometry.TriangleMesh(
+            o3d.utility.Vector3dVector(np.vstack([v for v, _ in meshes[key]])),
+            o3d.utility.Vector3iVector(np.vstack([t + o for (_, t), o in zip(meshes[key], offs)]).astype(np.int32)))
+        mesh = mesh.merge_close_vertices(1e-6)
+        mesh.remove_unreferenced_vertices()
+        v = np.asarray(mesh.vertices)
+        mesh.vertices = o3d.utility.Vector3dVector(v + rng.normal(0, cfg.mesh_noise, v.shape))
+        if budget is not None:
+            mesh = mesh.simplify_quadric_decimation(budget)
+        out = mesh if out is None else out + mesh
+    mesh = out
     mesh.remove_degenerate_triangles()
     mesh.remove_unreferenced_vertices()
     mesh.compute_vertex_normals()
-    return mesh
+    return mesh, baked

@@ -21,36 +21,90 @@ from egograph.geometry.hl2ss import (
 from egograph.io.calibration import AHAT_SHAPE, PV_SHAPE, AhatCalibration, PvCalibration
 from egograph.synth.config import AhatConfig, PoseErrorConfig, PvConfig
 from egograph.synth.scene import Scene, box_mesh
-from egograph.synth.trajectory import rot_x, rot_y, rot_z
+from egograph.synth.trajectory import HAND_THICKNESS, rot_x, rot_y, rot_z
 
 MISS = 4294967295  # Open3D's invalid geometry/primitive id
-HAND_SIZE = np.array([0.09, 0.035, 0.11])
+PALM_SIZE = np.array([0.085, 0.10, HAND_THICKNESS])  # body frame: across, up, towards the wearer; metres
+FOREARM = (0.3, 0.065, np.array([0.15, -0.45, 1.0]))  # length, width (m), direction in the body frame (right, up, back)
 HAND_COLOR = np.array([0.85, 0.62, 0.5])
 HAND_ALBEDO = 0.55
 
 
 # ---------------------------------------------------------------- calibration
 
-def make_calibration(ahat: AhatConfig, pv: PvConfig) -> tuple[AhatCalibration, PvCalibration]:
-    """hl2ss-style calibration of the synthetic headset (pinhole AHAT, undistorted PV)."""
+# The generator's head frame is x right, y up, z backward. A HoloLens rig node (the left-front
+# VLC camera, mounted rotated by 90 degrees) has x pointing down, y left and z forward: the real
+# extrinsics.bin (rig node -> AHAT camera) put the AHAT's forward axis at +0.29 x, +0.96 z in it, so the
+# AHAT looks forward and about 17 degrees down, image x to the right, as on the device.
+NODE_TO_HEAD_ROTATION = np.array([[0.0, -1.0, 0.0], [-1.0, 0.0, 0.0], [0.0, 0.0, -1.0]])  # rows: node axes in head
+AHAT_IN_HEAD = np.array([0.0, 0.03, -0.09])  # AHAT camera centre in the head frame, metres
+PV_IN_HEAD = np.array([0.01, 0.0, -0.1])     # PV camera centre in the head frame, metres
+
+
+@dataclass
+class HeadsetCalibration:
+    """The synthetic headset: calibrations as written, and where the rig node sits on the head."""
+
+    ahat: AhatCalibration
+    pv: PvCalibration
+    node_to_head: np.ndarray   # (4, 4) row-vector rig node -> head frame (identity for the pinhole AHAT)
+    ray_valid: np.ndarray      # (H, W) bool: AHAT pixels with a ray (the others always read raw 0)
+    device: str
+
+
+def _device_ahat(name: str) -> tuple[AhatCalibration, np.ndarray]:
+    """A real AHAT calibration by device name and its (H, W) pixels-with-a-ray mask."""
+    from egograph.io.devices import device_ahat_calibration
+
+    calib = device_ahat_calibration(name)
+    valid = getattr(calib, "ray_valid", None)  # None: every pixel has a ray
+    if valid is None:
+        valid = np.ones(np.asarray(calib.uv2xy).shape[:2], bool)
+    return calib, np.asarray(valid, bool)
+
+
+def make_calibration(ahat: AhatConfig, pv: PvConfig) -> HeadsetCalibration:
+    """hl2ss-style calibration of the synthetic headset: the AHAT of a real device (its rays,
+    pinhole approximation, undistort map and rig-node extrinsics; ``ahat.device``) or a pinhole
+    AHAT (``ahat.device: pinhole``, ``ahat.focal``, ``ahat.tilt``); an undistorted PV camera.
+
+    Both extrinsics are relative to the same rig node, as on the device, so the static chain
+    ``inv(ahat_extrinsics) @ pv_extrinsics`` maps AHAT points into the PV camera.
+    """
     h, w = AHAT_SHAPE
-    cx, cy = w / 2, h / 2
-    u, v = np.meshgrid(np.arange(w) + 0.5, np.arange(h) + 0.5)
-    uv2xy = np.stack([(u - cx) / ahat.focal, (v - cy) / ahat.focal], -1).astype(np.float32)
-    # Camera -> rig: AHAT looks down +z with y down; the rig looks down -z with y up.
-    flip = np.diag([1.0, -1.0, -1.0])
-    ahat_cam_to_rig = rigid_from_rt(rot_x(np.radians(-ahat.tilt)) @ flip, [0.0, 0.03, -0.09])
-    pv_cam_to_rig = rigid_from_rt(rot_x(np.radians(-pv.tilt)), [0.01, 0.0, -0.1])
-    a = AhatCalibration(uv2xy=uv2xy, extrinsics=invert_rigid(ahat_cam_to_rig), scale=1000.0, alias_mm=ahat.alias_mm,
-                        intrinsics=rm_intrinsics_matrix(ahat.focal, ahat.focal, cx, cy),
-                        undistort_map=np.stack([u - 0.5, v - 0.5], -1).astype(np.float32))
+    pv_cam_to_head = rigid_from_rt(rot_x(np.radians(-pv.tilt)), PV_IN_HEAD)
+    if ahat.device == "pinhole":
+        cx, cy = w / 2, h / 2
+        u, v = np.meshgrid(np.arange(w) + 0.5, np.arange(h) + 0.5)
+        uv2xy = np.stack([(u - cx) / ahat.focal, (v - cy) / ahat.focal], -1).astype(np.float32)
+        # Camera -> rig: AHAT looks down +z with y down; the rig (= head) looks down -z with y up.
+        flip = np.diag([1.0, -1.0, -1.0])
+        ahat_cam_to_rig = rigid_from_rt(rot_x(np.radians(-ahat.tilt)) @ flip, AHAT_IN_HEAD)
+        a = AhatCalibration(uv2xy=uv2xy, extrinsics=invert_rigid(ahat_cam_to_rig), scale=1000.0, alias_mm=ahat.alias_mm,
+                            intrinsics=rm_intrinsics_matrix(ahat.focal, ahat.focal, cx, cy),
+                            undistort_map=np.stack([u - 0.5, v - 0.5], -1).astype(np.float32))
+        node_to_head = np.eye(4)
+        ray_valid = np.ones((h, w), bool)
+    else:
+        real, ray_valid = _device_ahat(ahat.device)
+        # The device's rays as they are (finite everywhere; pixels without a ray render raw 0). The
+        # real scale (1000) is kept; the alias distance stays a knob (alias.bin differs by firmware).
+        a = AhatCalibration(uv2xy=np.asarray(real.uv2xy, np.float32), extrinsics=np.asarray(real.extrinsics, float),
+                            scale=float(real.scale), alias_mm=ahat.alias_mm,
+                            intrinsics=np.asarray(real.intrinsics, float),
+                            undistort_map=np.asarray(real.undistort_map, np.float32), ray_valid=ray_valid)
+        # Place the rig node so that the AHAT camera centre lands at AHAT_IN_HEAD.
+        node_to_head = np.eye(4)
+        node_to_head[:3, :3] = NODE_TO_HEAD_ROTATION
+        ahat_in_node = invert_rigid(a.extrinsics)[3, :3]
+        node_to_head[3, :3] = AHAT_IN_HEAD - ahat_in_node @ NODE_TO_HEAD_ROTATION
     ph, pw = PV_SHAPE
     k = pv_intrinsics_matrix(pv.focal, pv.focal, pw / 2, ph / 2)
-    ext = invert_rigid(pv_cam_to_rig)
+    ext = node_to_head @ invert_rigid(pv_cam_to_head)  # rig node -> PV camera
     p = PvCalibration(intrinsics=k, extrinsics=ext, focal_length=np.array([pv.focal, pv.focal]),
                       principal_point=np.array([pw / 2, ph / 2]), radial_distortion=np.zeros(3),
                       tangential_distortion=np.zeros(2), projection=ext @ k)
-    return a, p
+    return HeadsetCalibration(a, p, node_to_head, ray_valid, ahat.device)
 
 
 # ---------------------------------------------------------------- ray casting
@@ -64,12 +118,35 @@ class FrameGeometry:
     has_hand: bool
 
 
+def _unit_box(center: np.ndarray, size: np.ndarray, axes: np.ndarray) -> np.ndarray:
+    """Vertices (8, 3) of a box: unit-cube corners scaled by ``size`` along the rows of ``axes``, at ``center``."""
+    v, _ = box_mesh((0, 0, 0), size)
+    return v @ axes + center
+
+
+def hand_mesh(palm: np.ndarray, yaw: float) -> tuple[np.ndarray, np.ndarray]:
+    """The carrying hand (world, metres): a palm box centred at ``palm`` facing the wearer and a
+    forearm box reaching back and down to the body, turned by the body yaw (radians about y)."""
+    body = rot_y(yaw).T  # rows: the body's x, y, z axes in world
+    _, tris = box_mesh((0, 0, 0), (1, 1, 1))
+    length, width, direction = FOREARM
+    d = direction / np.linalg.norm(direction)
+    side = np.cross([0.0, 1.0, 0.0], d)
+    side /= np.linalg.norm(side)
+    arm_axes = np.stack([side, np.cross(d, side), d]) @ body  # forearm frame: across, normal, along
+    start = palm + (np.array([0.0, -0.02, HAND_THICKNESS / 2]) @ body)
+    verts = np.vstack([_unit_box(palm, PALM_SIZE, body),
+                       _unit_box(start + (d @ body) * length / 2, np.array([width, width, length]), arm_axes)])
+    return verts, np.vstack([tris, tris + 8])
+
+
 def object_world_vertices(scene: Scene, k: int, pos: np.ndarray, yaw: float) -> np.ndarray:
     return scene.objects[k].vertices @ rot_y(yaw).T + pos
 
 
-def build_raycasting_scene(scene: Scene, obj_pos: np.ndarray, obj_yaw: np.ndarray, hand: np.ndarray | None,
+def build_raycasting_scene(scene: Scene, obj_pos: np.ndarray, obj_yaw: np.ndarray, hand: tuple | None,
                            include_static: bool = True) -> FrameGeometry:
+    """Ray-casting scene of one instant; ``hand``: ``(palm centre, body yaw)`` of the carrying hand, or None."""
     rc = o3d.t.geometry.RaycastingScene()
     f32, i32 = o3d.core.Dtype.Float32, o3d.core.Dtype.UInt32
     if include_static:
@@ -82,7 +159,7 @@ def build_raycasting_scene(scene: Scene, obj_pos: np.ndarray, obj_yaw: np.ndarra
         v = object_world_vertices(scene, k, obj_pos[k], obj_yaw[k])
         rc.add_triangles(o3d.core.Tensor(v.astype(np.float32), f32), o3d.core.Tensor(scene.objects[k].triangles.astype(np.uint32), i32))
     if hand is not None:
-        v, t = box_mesh(hand, HAND_SIZE)
+        v, t = hand_mesh(*hand)
         rc.add_triangles(o3d.core.Tensor(v.astype(np.float32)), o3d.core.Tensor(t.astype(np.uint32)))
     return FrameGeometry(rc, len(scene.objects), hand is not None)
 
@@ -117,8 +194,10 @@ def ahat_camera_rays(calib: AhatCalibration) -> tuple[np.ndarray, np.ndarray]:
 
 
 def simulate_ahat(rng: np.random.Generator, scene: Scene, geom: FrameGeometry, cam_to_world: np.ndarray,
-                  dirs_cam: np.ndarray, norms: np.ndarray, cfg: AhatConfig) -> np.ndarray:
+                  dirs_cam: np.ndarray, norms: np.ndarray, cfg: AhatConfig,
+                  ray_valid: np.ndarray | None = None) -> np.ndarray:
     """Raw AHAT frame (512, 512) uint16 from a ray cast: wrapped range, noise, dropouts, flying pixels.
+    Pixels without a ray (``ray_valid`` False, (H*W,) bool) read 0.
 
     float32 throughout: this runs on 262k pixels per frame and dominates generation time.
     """
@@ -152,6 +231,8 @@ def simulate_ahat(rng: np.random.Generator, scene: Scene, geom: FrameGeometry, c
     wrapped = np.mod(np.maximum(img, 0), np.float32(cfg.alias_mm / 1000.0))
     raw = ahat_range_to_raw(wrapped, 1000.0, cfg.depth_factor)
     raw[~valid] = 0
+    if ray_valid is not None:
+        raw.reshape(-1)[~ray_valid] = 0
     return raw
 
 
@@ -174,7 +255,9 @@ class Textures:
         self.tint = rng.uniform(0.8, 1.15, (size ** 3, 3)).astype(np.float32)
 
     def _index(self, p: np.ndarray, scale: float) -> np.ndarray:
-        q = np.floor(p * np.float32(1.0 / scale)).astype(np.int64) & (self.size - 1)
+        # int32 lattice index: half the memory traffic of int64 on a million pixels
+        q = np.floor(p * np.float32(1.0 / scale)).astype(np.int32)
+        q &= self.size - 1
         return (q[:, 0] * self.size + q[:, 1]) * self.size + q[:, 2]
 
     def shade(self, points: np.ndarray, base: np.ndarray, seed_offset: np.ndarray | None = None) -> np.ndarray:
@@ -183,33 +266,70 @@ class Textures:
         v = np.zeros(len(p), np.float32)
         for scale, w in zip(self.SCALES, self.WEIGHTS):
             v += np.float32(w) * self.lattice[self._index(p, scale)]
-        tint = self.tint[self._index(p + 0.37, 0.3)]
-        return np.clip(base * tint * (v * np.float32(1.3))[:, None], 0, 1)
+        tint = self.tint[self._index(p + np.float32(0.37), 0.3)]
+        tint *= (v * np.float32(1.3))[:, None]
+        tint *= base
+        return np.clip(tint, 0, 1, out=tint)
 
 
 LIGHT = np.array([0.3, 0.85, 0.4]) / np.linalg.norm([0.3, 0.85, 0.4])
+LAMP_HEIGHT = 0.35  # lamps hang this far below the ceiling, metres
+LAMP_REACH = 2.0    # distance at which a lamp's light falls to half, metres
+DETAIL_HALF_WIDTH = 0.008  # half width of the band that tells a look-alike twin apart, metres
+
+
+def room_lamps(rng: np.random.Generator, room_size: np.ndarray, n: int = 2) -> np.ndarray:
+    """World positions (n, 3) of the room's lamps: the light varies across the room."""
+    w, d, h = room_size
+    return np.column_stack([rng.uniform(0.15, 0.85, n) * w, np.full(n, h - LAMP_HEIGHT), rng.uniform(0.15, 0.85, n) * d])
 
 
 def shade_hits(scene: Scene, textures: Textures, hit: dict, origin: np.ndarray, dirs: np.ndarray,
-               obj_pos: np.ndarray, obj_yaw: np.ndarray) -> np.ndarray:
-    """RGB (M, 3) float in [0, 1] for a cast: textured, Lambert-lit, black where nothing is hit."""
+               obj_pos: np.ndarray, obj_yaw: np.ndarray, lamps: np.ndarray | None = None) -> np.ndarray:
+    """RGB (M, 3) float in [0, 1] for a cast: textured and lit, black where nothing is hit.
+
+    One texture pass over every pixel: static surfaces in world coordinates, each object in its
+    own frame shifted by its pattern (look-alike twins share a pattern; the second twin has a thin
+    band of another colour around it, the small detail that tells them apart). Light: ambient plus
+    a sky direction plus ``lamps`` (world, (L, 3); falling off with distance), so the same surface
+    is brighter near a lamp.
+    """
     g, prim = hit["geom"], hit["prim"]
     t = hit["t"]
     ok = np.isfinite(t)
-    pts = origin.astype(np.float32) + dirs.astype(np.float32) * np.where(ok, t, 0)[:, None]
-    col = np.zeros((len(g), 3), np.float32)
-    st = ok & (g == 0)
-    if st.any():
-        col[st] = textures.shade(pts[st], scene.static_tri_color[prim[st]])
-    for k, obj in enumerate(scene.objects):
-        m = ok & (g == k + 1)
-        if m.any():
-            local = (pts[m] - obj_pos[k]) @ rot_y(obj_yaw[k])  # world -> object frame
-            col[m] = textures.shade(local, np.tile(obj.color, (m.sum(), 1)), np.full(3, 11.0 * obj.pattern + 5.0))
-    hm = ok & (g == len(scene.objects) + 1)
-    col[hm] = HAND_COLOR
-    lam = 0.45 + 0.55 * np.abs(hit["normal"] @ LIGHT.astype(np.float32))
-    return np.clip(col * lam[:, None], 0, 1)
+    pts = dirs.astype(np.float32) * np.where(ok, t, 0)[:, None]
+    pts += origin.astype(np.float32)
+    world = pts
+    k = len(scene.objects)
+    n_static = len(scene.static_tri_color)
+    # Base colour per pixel from one table: static triangles, then objects, then the hand.
+    lut = np.vstack([scene.static_tri_color, [o.color for o in scene.objects], [HAND_COLOR], [[0, 0, 0]]]).astype(np.float32)
+    cid = np.where(g == 0, np.minimum(prim, n_static - 1), n_static + np.minimum(g, k + 2).astype(np.int64) - 1)
+    cid[~ok] = n_static + k + 1
+    tex_pts = world.copy()
+    detail = []
+    for j, obj in enumerate(scene.objects):
+        m = np.flatnonzero(ok & (g == j + 1))
+        if len(m):
+            local = (world[m] - obj_pos[j].astype(np.float32)) @ rot_y(obj_yaw[j]).astype(np.float32)  # world -> object
+            tex_pts[m] = local + np.float32(11.0 * obj.pattern + 5.0)
+            if 0 <= obj.twin < j:  # the second of a look-alike pair
+                detail.append(m[np.abs(local[:, 1] - np.float32(0.2 * obj.size[1])) < DETAIL_HALF_WIDTH])
+    col = textures.shade(tex_pts, lut[cid])
+    for m in detail:
+        col[m] = col[m][:, ::-1] * np.float32(0.8)  # the band: channels swapped, a little darker
+    normal = hit["normal"]
+    lam = np.abs(normal @ LIGHT.astype(np.float32))
+    lam *= np.float32(0.35)
+    lam += np.float32(0.3)
+    if lamps is not None:
+        for lamp in np.asarray(lamps, np.float32):
+            to = lamp - world
+            d2 = np.einsum("ij,ij->i", to, to) + np.float32(1e-6)
+            lam += np.float32(0.6) * np.abs(np.einsum("ij,ij->i", normal, to)) / np.sqrt(d2) \
+                / (np.float32(1.0) + d2 / np.float32(LAMP_REACH ** 2))
+    col *= lam[:, None]
+    return np.clip(col, 0, 1, out=col)
 
 
 def pv_camera_rays(calib: PvCalibration, downsample: int = 1) -> tuple[np.ndarray, tuple[int, int]]:

@@ -16,6 +16,8 @@ from egograph.geometry.hl2ss import rigid_from_rt
 from egograph.synth.config import SynthConfig
 from egograph.synth.scene import Scene, sample_spot
 
+HAND_THICKNESS = 0.03  # palm thickness, metres (egograph.synth.sensors.hand_mesh)
+
 
 def rot_x(a):
     c, s = np.cos(a), np.sin(a)
@@ -72,8 +74,9 @@ class Trajectory:
     obj_pos: np.ndarray       # (N, K, 3) object centres in world
     obj_yaw: np.ndarray       # (N, K) radians about world y
     held: np.ndarray          # (N, K) bool: in hand (motion state dynamic)
-    hand_pos: np.ndarray      # (N, 3)
+    hand_pos: np.ndarray      # (N, 3) palm centre in world, metres (on the carried object's side facing the wearer)
     hand_active: np.ndarray   # (N,) bool
+    hand_yaw: np.ndarray = None  # (N,) body yaw (radians about world y): the forearm points back towards the body
     moves: list[Move] = field(default_factory=list)
 
     def __len__(self) -> int:
@@ -97,9 +100,11 @@ class Trajectory:
         f = np.atleast_1d(float(f))
         return self._interp(self.obj_pos, f)[0], self._interp(self.obj_yaw, f)[0]
 
-    def hand_at(self, f: float) -> tuple[np.ndarray, bool]:
+    def hand_at(self, f: float) -> tuple[np.ndarray, float, bool]:
+        """Palm centre (3,), body yaw (radians) and whether the hand is in the scene, at a fractional frame."""
         i = int(round(min(max(f, 0), len(self) - 1)))
-        return self._interp(self.hand_pos, np.atleast_1d(float(f)))[0], bool(self.hand_active[i])
+        ff = np.atleast_1d(float(f))
+        return self._interp(self.hand_pos, ff)[0], float(self._interp(self.hand_yaw, ff)[0]), bool(self.hand_active[i])
 
     def angular_speed_dps(self) -> np.ndarray:
         """Head angular speed per frame, degrees per second."""
@@ -190,6 +195,11 @@ def make_trajectory(rng: np.random.Generator, scene: Scene, cfg: SynthConfig) ->
         state["f"] = b
         state["xz"] = head_xz[b - 1].copy()
 
+    def calm(seconds: float):
+        # No fast head turn starts in the last ``seconds`` before now (a turn lasts up to ~1.7 s).
+        a = max(0, state["f"] - int(round(seconds * fps)))
+        turn_rate[a:state["f"]] = 0.0
+
     def look_around(seconds: float):
         # Look at a few other work areas in turn, with fast head turns on top.
         m = max(1, int(round(seconds * fps)))
@@ -223,13 +233,14 @@ def make_trajectory(rng: np.random.Generator, scene: Scene, cfg: SynthConfig) ->
         stand_src = _stand_point(rng, scene, int(cur_surface[i]), cur[i])
         stand_dst = _stand_point(rng, scene, s_dst, dst)
         need = (np.linalg.norm(stand_src - state["xz"]) + np.linalg.norm(stand_dst - stand_src)) / wc.walk_speed \
-            + 1.0 + 2 * wc.reach_time + wc.idle_time[0]
+            + 1.0 + 2 * wc.reach_time + wc.watch_time[0] + wc.idle_time[0]
         if need * fps > remaining():
             break
         src = cur[i].copy()
         dip_src = 0.15 if src[1] < 0.85 else 0.0
         dip_dst = 0.15 if dst[1] < 0.85 else 0.0
         walk(stand_src, lambda j, t=src: t, rate=wc.head_turn_rate / 3)
+        calm(wc.approach_calm)
         hold(wc.reach_time, lambda j, t=src: t, dip=dip_src)
         pick = state["f"]
         d = rng.uniform(*wc.carry_distance)
@@ -239,7 +250,7 @@ def make_trajectory(rng: np.random.Generator, scene: Scene, cfg: SynthConfig) ->
         place = state["f"] - 1
         carry_dist[a:state["f"]] = d
         # The hand withdraws while the eyes stay a moment on the object just put down.
-        hold(rng.uniform(0.4, 0.9), lambda j, t=dst: t, dip=dip_dst)
+        hold(rng.uniform(*wc.watch_time), lambda j, t=dst: t, dip=dip_dst)
         moves.append(Move(i, pick, place, src, dst.copy()))
         cur[i] = dst
         cur_surface[i] = s_dst
@@ -290,16 +301,17 @@ def make_trajectory(rng: np.random.Generator, scene: Scene, cfg: SynthConfig) ->
     pitch = pitch + rng.normal(0, np.radians(0.5), n).cumsum() * 0.02
     roll = np.radians(2.0) * np.sin(2 * np.pi * 0.15 * np.arange(n) * dt + rng.uniform(0, 6))
 
-    # Hand and carried object: in front of the body, below the eyes, 0.3-0.6 m away.
+    # Carried object: in front of the body, below the eyes, 0.3-0.6 m away; the hand grips it on the
+    # side facing the wearer (so it hides part of it), the forearm reaching back to the body.
     hand_active = carrying >= 0
     body = np.stack([rot_y(a) for a in body_yaw])
     local = np.column_stack([np.full(n, 0.06), -0.28 * np.maximum(carry_dist, 0.3) / 0.45, -np.maximum(carry_dist, 0.3)])
-    hand_pos = eye + np.einsum("nij,nj->ni", body, local)
+    carry_pos = eye + np.einsum("nij,nj->ni", body, local)
+    hand_pos = carry_pos.copy()
     for mv in moves:
         i = mv.instance
         a, b = mv.pick_frame, mv.place_frame
-        size_y = scene.objects[i].size[1]
-        grip = hand_pos[a:b + 1] + np.array([0, 0.02 + size_y / 2, 0])
+        size = scene.objects[i].size
         lift = max(2, int(0.4 * fps))
         put = max(2, int(cfg.wearer.reach_time * fps))
         w = np.ones(b + 1 - a)
@@ -307,10 +319,13 @@ def make_trajectory(rng: np.random.Generator, scene: Scene, cfg: SynthConfig) ->
         tail = min(put, len(w))
         w[-tail:] = np.minimum(w[-tail:], 1 - smoothstep(np.arange(1, tail + 1) / tail))
         base = np.where((np.arange(a, b + 1) - a < len(w) / 2)[:, None], mv.src, mv.dst)
-        obj_pos[a:b + 1, i] = base + w[:, None] * (grip - base)
+        obj_pos[a:b + 1, i] = base + w[:, None] * (carry_pos[a:b + 1] - base)
         obj_pos[b + 1:, i] = mv.dst
         obj_yaw[a:b + 1, i] = obj_yaw[a, i] + np.linspace(0, rng.uniform(-1, 1), b + 1 - a)
         obj_yaw[b + 1:, i] = obj_yaw[b, i]
         held[a:b + 1, i] = True
-        hand_pos[a:b + 1] = np.where(w[:, None] < 1, obj_pos[a:b + 1, i] - [0, 0.02 + size_y / 2, 0], hand_pos[a:b + 1])
-    return Trajectory(fps, eye, yaw, pitch, roll, obj_pos, obj_yaw, held, hand_pos, hand_active, moves)
+        # Palm against the object's near side, a little right of and below its centre (body frame:
+        # x right, y up, z back towards the wearer).
+        grip = np.array([0.02, -0.15 * size[1], max(size[0], size[2]) / 2 + HAND_THICKNESS / 2])
+        hand_pos[a:b + 1] = obj_pos[a:b + 1, i] + np.einsum("nij,j->ni", body[a:b + 1], grip)
+    return Trajectory(fps, eye, yaw, pitch, roll, obj_pos, obj_yaw, held, hand_pos, hand_active, hand_yaw=body_yaw, moves=moves)

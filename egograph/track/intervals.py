@@ -94,6 +94,8 @@ def read_intervals_json(path: str | Path) -> tuple[list[PositionInterval], dict]
         raise InputError(path, "intervals file not found") from None
     except json.JSONDecodeError as exc:
         raise InputError(path, f"not JSON ({exc.msg})", exc.lineno) from None
+    except UnicodeDecodeError:
+        raise InputError(path, "not JSON (not UTF-8 text)") from None
     version = doc.get("schema_version")
     if version is not None and version != SCHEMA_VERSION:
         raise InputError(path, f"intervals schema_version {version!r}: this egograph reads {SCHEMA_VERSION}")

@@ -29,12 +29,13 @@ view during a gap are read.
 
 from __future__ import annotations
 
+import math
 from collections import OrderedDict
 
 import numpy as np
 
+from egograph.geometry.ahat_model import pixel_lookup
 from egograph.geometry.hl2ss import (
-    ahat_project,
     ahat_to_world_matrix,
     ahat_unit_rays,
     invert_rigid,
@@ -56,6 +57,7 @@ class NegativeEvidence:
         self.m_per_raw = float(rec.depth_factor) / float(ahat.scale)
         self.dirs = ahat_unit_rays(ahat.uv2xy)  # (H, W, 3) float64 unit rays, AHAT camera
         self.ahat_shape = self.dirs.shape[:2]
+        self.lookup = pixel_lookup(ahat)
         self.pv_shape = tuple(rec.pv.shape)
         self.scene = rec.mesh_scene()  # the recording's cached scene: the lift already built it
         keep = obs.valid & (np.asarray(obs.score, np.float32) >= np.float32(score_threshold))
@@ -118,9 +120,12 @@ class NegativeEvidence:
         r_land = float(np.linalg.norm(p_cam))
         if r_land > cfg.max_range_m or p_cam[2] <= 0:
             return 0
-        uv, _ = ahat_project(p_cam, rec.ahat.intrinsics)
+        # Through the real rays: intrinsics.bin is a wide viewing pinhole, up to 86 px off on the device.
+        uv = self.lookup.project_one(p_cam)
+        if uv is None:
+            return 0
         h, w = self.ahat_shape
-        u, v = int(np.floor(uv[0])), int(np.floor(uv[1]))
+        u, v = int(math.floor(uv[0])), int(math.floor(uv[1]))
         k = cfg.window_px
         if not (k <= u < w - k and k <= v < h - k):
             return 0

@@ -1,0 +1,569 @@
+"""Step ``run``: every stage on every sequence of a dataset, as tasks on a Dask cluster.
+
+A run is a plan of tasks, one per (sequence, stage[, tracker]), each depending on the tasks whose
+outputs it reads::
+
+    refine ──► lift ──► track/<tracker> ──► eval/<tracker>
+       └─────► regt
+
+``refine``, when asked for, feeds its poses to every later stage of that sequence. A stage asked
+for brings the ones it needs (``eval`` needs ``track``, which needs ``lift``); a stage whose
+output is already there for the same inputs and configuration is not computed again, so adding
+them costs nothing.
+
+Outputs (``RUNS`` is ``--out``)::
+
+    RUNS/cache/<seq>/refine-<key>/            refined poses (egograph refine's folder)
+    RUNS/cache/<seq>/lift-<key>.npz           observations
+    RUNS/cache/<seq>/track-<tracker>-<key>/   results folder (reference format + intervals.json)
+    RUNS/cache/<seq>/eval-<tracker>-<key>/    eval.json (the ``egograph eval --json`` format)
+    RUNS/cache/<seq>/regt-<key>/              re-estimated centres and their audit
+    RUNS/<name>/config.yaml                   the resolved configuration
+    RUNS/<name>/run.json                      what ran: command, tasks, outputs, status, seconds
+    RUNS/<name>/summary.json                  pooled evaluation per tracker, per-sequence rows, failures
+    RUNS/<name>/<seq>/{refined,lifted.npz,<tracker>,eval-<tracker>.json,regt}  links into the cache
+    RUNS/latest -> <name>
+
+``<key>`` is a digest of the configuration sections a stage depends on and the key of the stage it
+reads, so a later run with another tracker set or other graph knobs reuses the lifted observations;
+inside, each step's own fingerprint (``egograph.json``, the ``.npz`` provenance) decides whether
+its output is current. ``<name>`` is ``<dataset folder>-<digest>`` of the dataset path, its
+sequences, the stages, trackers, detection set and resolved configuration: the same command names
+the same run, and run again resumes it. Nothing written holds a wall-clock time except
+``run.json``'s seconds; ``summary.json`` holds no output path, so a resumed run's summary equals an
+uninterrupted one's byte for byte.
+
+Tasks run :func:`run_task` (importable, for pickling) on Dask workers. A task gets paths and
+names, never arrays: workers read the dataset and write the shared ``RUNS`` folder themselves, so
+``RUNS`` and the dataset must be at the same path on every worker. An error in a task is caught
+and returned as its status (the tasks after it on that sequence are skipped); a worker that dies
+has its task run again on another worker by the scheduler (up to
+``distributed.scheduler.allowed-failures`` times, default 3).
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import time
+import traceback
+import warnings
+from dataclasses import dataclass, field
+from pathlib import Path
+
+from egograph import __version__
+from egograph.core.config import to_dict
+from egograph.core.errors import ConfigError, EgographError
+from egograph.steps import outputs
+from egograph.steps.dataset import DatasetSequence, list_dataset
+
+STAGES = ("refine", "lift", "track", "eval", "regt")
+"""Stages in pipeline order."""
+
+PLANNED_STAGES = {"detect": "2D detection from the PV frames is not implemented yet; the detections come from the "
+                            "dataset (--detections, a set name such as svoe or mvpe)"}
+"""Stages of the issue that have no step yet: refused with this reason."""
+
+DEFAULT_STAGES = ("lift", "track", "eval")
+NEEDS = {"track": "lift", "eval": "track"}
+"""The stage a stage reads the output of (``refine`` and ``regt`` need none)."""
+
+RUN_FILE = "run.json"
+SUMMARY_FILE = "summary.json"
+LATEST = "latest"
+CACHE = "cache"
+
+OK, FAILED, SKIPPED = "ok", "failed", "skipped"
+
+LOOPBACK = "127.0.0.1"
+"""Where the local cluster's scheduler, nannies and workers listen: nothing is reachable from
+another machine."""
+
+
+# ------------------------------------------------------------------ the plan
+
+
+@dataclass
+class Task:
+    """One (sequence, stage[, tracker]); ``spec`` is what the worker gets (paths and names only)."""
+
+    key: str                  # "lift/seqA", "track/seqA/graph"
+    stage: str
+    sequence: str
+    tracker: str | None
+    out: Path                 # the output in the cache
+    link: str                 # its name in RUNS/<name>/<seq>/
+    deps: list[str] = field(default_factory=list)
+    spec: dict = field(default_factory=dict)
+
+    @property
+    def label(self) -> str:
+        """``lift``, ``track/graph``: the stage column of the tables."""
+        return self.stage if self.tracker is None else f"{self.stage}/{self.tracker}"
+
+
+@dataclass
+class RunPlan:
+    dataset: Path
+    runs: Path
+    name: str
+    stages: list[str]
+    trackers: list[str]
+    detections: str
+    sequences: list[DatasetSequence]
+    config_digest: str
+    tasks: list[Task]
+
+    @property
+    def folder(self) -> Path:
+        return self.runs / self.name
+
+    @property
+    def config_path(self) -> Path:
+        return self.folder / outputs.CONFIG_FILE
+
+
+def resolve_stages(stages) -> list[str]:
+    """The stages asked for plus the ones they need, in pipeline order; ConfigError for an unknown
+    or not yet available stage."""
+    asked = [s.strip() for s in (stages or DEFAULT_STAGES) if s.strip()]
+    if not asked:
+        raise ConfigError("--stages: no stage given (choose from " + ", ".join(STAGES) + ")")
+    for s in asked:
+        if s in PLANNED_STAGES:
+            raise ConfigError(f"--stages: {s}: not available yet ({PLANNED_STAGES[s]})")
+        if s not in STAGES:
+            raise ConfigError(f"--stages: unknown stage {s!r} (choose from {', '.join(STAGES)})")
+    chosen = set(asked)
+    for s in list(asked):
+        while s in NEEDS:
+            s = NEEDS[s]
+            chosen.add(s)
+    return [s for s in STAGES if s in chosen]
+
+
+def resolve_trackers(trackers) -> list[str]:
+    from egograph.track.registry import TRACKERS
+
+    names = [t.strip() for t in (trackers or TRACKERS) if t.strip()]
+    for t in names:
+        if t not in TRACKERS:
+            raise ConfigError(f"--trackers: unknown tracker {t!r} (choose from {', '.join(TRACKERS)})")
+    if not names:
+        raise ConfigError("--trackers: no tracker given (choose from " + ", ".join(TRACKERS) + ")")
+    return list(dict.fromkeys(names))
+
+
+def stage_keys(cfg, detections: str, refine: bool, trackers: list[str]) -> dict:
+    """Cache keys: a digest of what each stage's result depends on in the configuration and the key
+    of the stage it reads (the step's own fingerprint then checks the inputs' contents)."""
+    from egograph.steps.track import tracker_sections
+
+    io = to_dict(cfg.io)
+    k = {"refine": outputs.digest("refine", to_dict(cfg.refine), io)[:12] if refine else None}
+    k["lift"] = outputs.digest("lift", cfg.lift.result_knobs(), io, detections, k["refine"])[:12]
+    sections = tracker_sections(cfg)
+    for t in trackers:
+        k[f"track/{t}"] = outputs.digest("track", t, sections, k["lift"])[:12]
+        k[f"eval/{t}"] = outputs.digest("eval", k[f"track/{t}"])[:12]
+    k["regt"] = outputs.digest("regt", to_dict(cfg), k["refine"])[:12]
+    return k
+
+
+def plan_run(dataset: str | Path, runs: str | Path, cfg, *, stages=None, trackers=None, detections: str = "svoe",
+             name: str | None = None) -> RunPlan:
+    """The tasks of ``egograph run`` (nothing is written): InputError when the dataset holds no
+    sequence, ConfigError for an unknown stage or tracker."""
+    stages = resolve_stages(stages)
+    trackers = resolve_trackers(trackers) if "track" in stages else []
+    dataset = Path(dataset).resolve()
+    seqs = list_dataset(dataset)
+    runs = Path(runs).resolve()
+    cfg_digest = outputs.digest(to_dict(cfg))
+    if name is None:
+        name = f"{dataset.name}-" + outputs.digest(__version__, str(dataset), [s.id for s in seqs], stages, trackers,
+                                                   detections, cfg_digest)[:10]
+    if not name or name in (LATEST, CACHE) or "/" in name or name.startswith("."):
+        raise ConfigError(f"--name {name!r}: not a usable run name (not empty, {LATEST}, {CACHE}, hidden or a path)")
+    keys = stage_keys(cfg, detections, "refine" in stages, trackers)
+    tasks = []
+    for seq in seqs:
+        tasks += sequence_tasks(seq, runs / CACHE / seq.id, stages, trackers, keys, detections)
+    plan = RunPlan(dataset, runs, name, stages, trackers, detections, seqs, cfg_digest, tasks)
+    for t in tasks:
+        t.spec.update(config=str(plan.config_path), log=str(plan.folder / "logs" / (t.key.replace("/", "-") + ".log")))
+    return plan
+
+
+def sequence_tasks(seq: DatasetSequence, cache: Path, stages: list[str], trackers: list[str], keys: dict,
+                   detections: str) -> list[Task]:
+    """The tasks of one sequence, each after the tasks it depends on."""
+    tasks: list[Task] = []
+    base = {"sequence": seq.id, "sequence_dir": str(seq.path)}
+    refine_key = None
+    poses = None
+    if "refine" in stages:
+        out = cache / f"refine-{keys['refine']}"
+        refine_key, poses = f"refine/{seq.id}", str(out)
+        tasks.append(Task(refine_key, "refine", seq.id, None, out, "refined", spec={**base, "stage": "refine"}))
+    pre = [refine_key] if refine_key else []
+    base["poses"] = poses
+    if "lift" in stages:
+        obs = cache / f"lift-{keys['lift']}.npz"
+        tasks.append(Task(f"lift/{seq.id}", "lift", seq.id, None, obs, "lifted.npz", list(pre),
+                          {**base, "stage": "lift", "detections": detections}))
+        for t in trackers if "track" in stages else []:
+            res = cache / f"track-{t}-{keys[f'track/{t}']}"
+            tasks.append(Task(f"track/{seq.id}/{t}", "track", seq.id, t, res, t, [f"lift/{seq.id}"],
+                              {**base, "stage": "track", "tracker": t, "observations": str(obs)}))
+            if "eval" in stages:
+                ev = cache / f"eval-{t}-{keys[f'eval/{t}']}"
+                tasks.append(Task(f"eval/{seq.id}/{t}", "eval", seq.id, t, ev, f"eval-{t}", [f"track/{seq.id}/{t}"],
+                                  {**base, "stage": "eval", "tracker": t, "results": str(res)}))
+    if "regt" in stages:
+        tasks.append(Task(f"regt/{seq.id}", "regt", seq.id, None, cache / f"regt-{keys['regt']}", "regt", list(pre),
+                          {**base, "stage": "regt"}))
+    for t in tasks:
+        t.spec.update(key=t.key, out=str(t.out))
+    return tasks
+
+
+# ------------------------------------------------------------------ on a worker
+
+
+def run_task(spec: dict, *deps: dict) -> dict:
+    """Run one task on a worker -> its status (small, JSON-able).
+
+    ``deps`` are the statuses of the tasks it reads from (passed so that Dask runs it after them);
+    when one of them did not end ``ok`` the task is skipped. Any exception is caught: a one-line
+    ``error`` (an unexpected one also writes its traceback to ``spec["log"]``). ``reused`` says the
+    output was already there for the same inputs (nothing computed).
+    """
+    key = spec["key"]
+    bad = [d for d in deps if d.get("status") != OK]
+    if bad:
+        return {"key": key, "status": SKIPPED, "reused": False, "error": f"needs {bad[0]['key']} ({bad[0]['status']})",
+                "warnings": [], "seconds": 0.0}
+    t0, c0 = time.perf_counter(), time.process_time()
+    before = _signature(spec["out"])
+    try:
+        with warnings.catch_warnings(record=True) as caught:
+            warnings.simplefilter("always")
+            STAGE_FUNCTIONS[spec["stage"]](spec)
+        status, error = OK, None
+    except EgographError as exc:
+        status, error, caught = FAILED, str(exc), []
+    except Exception as exc:  # a bug: one line here, the traceback in the run's logs
+        status, caught = FAILED, []
+        error = f"internal error: {type(exc).__name__}: {' '.join(str(exc).split())[:300]}"
+        log = Path(spec["log"])
+        try:
+            log.parent.mkdir(parents=True, exist_ok=True)
+            log.write_text(f"egograph {__version__}\n{key}\n\n{traceback.format_exc()}")
+            error += f" (traceback in logs/{log.name})"
+        except OSError:
+            pass
+    after = _signature(spec["out"])
+    lines = list(dict.fromkeys(str(w.message) for w in caught))
+    return {"key": key, "status": status, "error": error, "reused": status == OK and before is not None and before == after,
+            "warnings": lines[:5] + ([f"... {len(lines) - 5} more"] if len(lines) > 5 else []),
+            "seconds": round(time.perf_counter() - t0, 3),
+            "cpu_seconds": round(time.process_time() - c0, 3)}  # the worker process's, every thread
+
+
+def _signature(path: str) -> tuple | None:
+    """Identity of an output (file or folder): outputs are replaced by a rename, so a new inode
+    (or mtime) means the step wrote it."""
+    try:
+        st = os.stat(path)
+    except OSError:
+        return None
+    return st.st_ino, st.st_mtime_ns
+
+
+def _config(spec: dict):
+    from egograph.core.config import load_config
+    from egograph.steps.settings import EgographConfig
+
+    return load_config(EgographConfig, spec["config"])
+
+
+def _open(spec: dict, cfg):
+    from egograph.steps.recording import open_recording
+
+    return open_recording(spec["sequence_dir"], cfg, poses=spec.get("poses"))
+
+
+def stage_refine(spec: dict) -> None:
+    from egograph.steps.refine import refine
+
+    cfg = _config(spec)
+    if cfg.io.invalid_poses == "error":  # as `egograph refine`: frames with an invalid pose are refined around
+        cfg.io.invalid_poses = "skip"
+    refine(_open({**spec, "poses": None}, cfg), cfg, spec["out"])
+
+
+def stage_lift(spec: dict) -> None:
+    from egograph.steps.lift import lift
+
+    cfg = _config(spec)
+    lift(_open(spec, cfg), spec["detections"], cfg, spec["out"], progress=False)
+
+
+def stage_track(spec: dict) -> None:
+    from egograph.geometry.observations import Observations
+    from egograph.steps.track import track
+
+    cfg = _config(spec)
+    track(_open(spec, cfg), spec["tracker"], Observations.load(spec["observations"]), cfg, spec["out"])
+
+
+EVAL_FILE = "eval.json"
+
+
+def eval_record(rec, results: Path, name: str) -> dict:
+    """Run record of an evaluation: the recording, its annotation files, the results (their run's
+    fingerprint, else their contents) and the sequence's name in the report."""
+    from egograph.steps.recording import require_annotations
+
+    ann = require_annotations(rec, "labels.csv, 3d_center_annot.txt")
+    prev = outputs.previous_record(results)
+    made_by = prev.get("fingerprint") if prev else None
+    return outputs.run_record("eval", None, {"recording": outputs.recording_digest(rec), "name": name,
+                                             "annotations": outputs.folder_digest(ann),
+                                             "results": made_by or outputs.folder_digest(results)})
+
+
+def stage_eval(spec: dict) -> None:
+    from egograph.io.atomic import atomic_dir
+    from egograph.steps.evaluate import evaluate
+
+    cfg = _config(spec)
+    rec = _open(spec, cfg)
+    results = Path(spec["results"])
+    record = eval_record(rec, results, spec["sequence"])
+    if outputs.up_to_date(spec["out"], record, False):
+        return
+    report = evaluate(rec, results, name=spec["sequence"], strict=getattr(cfg.io, "strict", False))
+    with atomic_dir(spec["out"]) as tmp:
+        (tmp / EVAL_FILE).write_text(json.dumps(report.to_json_dict(), indent=2) + "\n")
+        outputs.write_run_files(tmp, record, None)
+
+
+def stage_regt(spec: dict) -> None:
+    from egograph.steps.regt import regt
+
+    cfg = _config(spec)
+    rec = _open(spec, cfg)
+    # the record egograph.steps.regt.write_regt writes (regt has no skip of its own)
+    record = outputs.run_record("regt", cfg, {"recording": outputs.recording_digest(rec), "joint": False})
+    if outputs.up_to_date(spec["out"], record, False):
+        return
+    regt(rec, cfg, spec["out"])
+
+
+STAGE_FUNCTIONS = {"refine": stage_refine, "lift": stage_lift, "track": stage_track, "eval": stage_eval,
+                   "regt": stage_regt}
+
+
+# ------------------------------------------------------------------ the cluster
+
+
+def open_client(workers: int = 2, scheduler: str | None = None):
+    """A ``distributed.Client``: on the cluster at ``scheduler`` (its address, ``tcp://`` or
+    ``tls://``; TLS settings come from Dask's configuration, ``distributed.comm.tls.*``), else on a
+    new LocalCluster of ``workers`` single-threaded worker processes listening on 127.0.0.1 only,
+    without a dashboard (no port opens beyond loopback)."""
+    from distributed import Client, LocalCluster
+
+    if scheduler:
+        try:
+            return Client(scheduler, timeout="30s")
+        except (OSError, TimeoutError, TypeError, ValueError) as exc:
+            hint = ""
+            if scheduler.startswith("tls://"):
+                hint = ("; tls:// needs Dask's TLS settings: distributed.comm.tls.ca-file, .client.cert and "
+                        ".client.key (a dask config file or DASK_DISTRIBUTED__COMM__TLS__* variables)")
+            raise ConfigError(f"--scheduler {scheduler}: cannot connect ({type(exc).__name__}: "
+                              f"{' '.join(str(exc).split())[:200]}){hint}") from None
+    if workers < 1:
+        raise ConfigError(f"--workers {workers}: need at least 1")
+    # The scheduler serves HTTP (health, metrics; the dashboard when asked for) whatever its
+    # dashboard setting: without a dashboard, on a free loopback port rather than 8787.
+    cluster = LocalCluster(n_workers=workers, threads_per_worker=1, processes=True, host=LOOPBACK,
+                           dashboard_address=None, worker_dashboard_address=None,
+                           scheduler_kwargs={"dashboard": False, "dashboard_address": f"{LOOPBACK}:0"})
+    return Client(cluster)
+
+
+def close_client(client) -> None:
+    """Close the client, and the local cluster it runs on (a remote cluster is left running)."""
+    import logging
+
+    cluster = getattr(client, "cluster", None)
+    client.close()
+    if cluster is not None:
+        # a worker still tearing GTSAM/Open3D down is killed after a few seconds: not worth a warning
+        nanny = logging.getLogger("distributed.nanny")
+        level = nanny.level
+        nanny.setLevel(logging.ERROR)
+        try:
+            cluster.close()
+        finally:
+            nanny.setLevel(level)
+
+
+# ------------------------------------------------------------------ the run
+
+
+@dataclass
+class RunOutcome:
+    plan: RunPlan
+    results: dict            # task key -> status dict
+    summary: dict
+
+    @property
+    def failed(self) -> list[dict]:
+        return [r for r in self.results.values() if r["status"] != OK]
+
+    @property
+    def n_ok(self) -> int:
+        return sum(r["status"] == OK for r in self.results.values())
+
+    @property
+    def n_reused(self) -> int:
+        return sum(bool(r.get("reused")) for r in self.results.values())
+
+
+def start_run(plan: RunPlan, cfg, command: str | None = None) -> None:
+    """Write the run folder (config, run.json without results) and point ``latest`` at it."""
+    import shutil
+
+    from egograph.io.atomic import atomic_write_text
+
+    plan.folder.mkdir(parents=True, exist_ok=True)
+    shutil.rmtree(plan.folder / "logs", ignore_errors=True)  # tracebacks of an earlier attempt of this run
+    atomic_write_text(plan.config_path, outputs.config_yaml(cfg))
+    write_run_json(plan, {}, command)
+    link(plan.runs / LATEST, plan.name)
+
+
+def write_run_json(plan: RunPlan, results: dict, command: str | None = None) -> None:
+    from egograph.io.atomic import atomic_write_text
+
+    doc = {"egograph_version": __version__, "command": command or outputs.command_line(),
+           "dataset": str(plan.dataset), "name": plan.name, "stages": plan.stages, "trackers": plan.trackers,
+           "detections": plan.detections, "config_digest": plan.config_digest,
+           "complete": len(results) == len(plan.tasks),
+           "tasks": {t.key: {"output": os.path.relpath(t.out, plan.runs), "deps": t.deps, **results.get(t.key, {})}
+                     for t in plan.tasks}}
+    atomic_write_text(plan.folder / RUN_FILE, json.dumps(doc, indent=1) + "\n")
+
+
+def link(path: Path, target: str) -> None:
+    """Make ``path`` a symbolic link to ``target`` (relative), replacing what link was there in one rename."""
+    tmp = path.with_name(f".{path.name}.{os.getpid()}.link")
+    tmp.unlink(missing_ok=True)
+    os.symlink(target, tmp)
+    os.replace(tmp, path)
+
+
+def link_output(plan: RunPlan, task: Task) -> None:
+    folder = plan.folder / task.sequence
+    folder.mkdir(parents=True, exist_ok=True)
+    target = task.out / EVAL_FILE if task.stage == "eval" else task.out
+    name = task.link + (".json" if task.stage == "eval" else "")
+    link(folder / name, os.path.relpath(target, folder))
+
+
+def execute(plan: RunPlan, client, progress=None) -> dict:
+    """Submit every task (each after the ones it depends on) and wait for all -> key -> status.
+
+    ``progress(task, status)`` is called as each one ends. A task whose worker died more often
+    than the scheduler allows (``KilledWorker``), or whose result cannot be had, fails with that
+    error; the others go on.
+    """
+    from distributed import as_completed
+
+    futures, by_future = {}, {}
+    for t in plan.tasks:
+        fut = client.submit(run_task, t.spec, *[futures[d] for d in t.deps], key=f"egograph-{plan.name}-{t.key}",
+                            pure=False, retries=0)
+        futures[t.key] = fut
+        by_future[fut.key] = t
+    results = {}
+    for fut in as_completed(list(futures.values())):
+        t = by_future[fut.key]
+        try:
+            res = fut.result()
+        except Exception as exc:  # KilledWorker, a lost scheduler, a dependency that could not run
+            res = {"key": t.key, "status": FAILED, "reused": False, "warnings": [], "seconds": None,
+                   "error": f"{type(exc).__name__}: {' '.join(str(exc).split())[:300]}"}
+        results[t.key] = res
+        if res["status"] == OK:
+            link_output(plan, t)
+        if progress is not None:
+            progress(t, res)
+    return {t.key: results[t.key] for t in plan.tasks}
+
+
+def pooled_reports(plan: RunPlan, results: dict) -> dict:
+    """tracker -> EvalReport of every sequence whose evaluation succeeded, in sequence order:
+    the counts of each sequence read back exactly (raw sums), pooled by summing them."""
+    from egograph.eval.report import EvalReport
+
+    reports = {}
+    for tracker in plan.trackers:
+        pooled = EvalReport()
+        for t in plan.tasks:
+            if t.stage == "eval" and t.tracker == tracker and results[t.key]["status"] == OK:
+                one = EvalReport.from_json_dict(json.loads((t.out / EVAL_FILE).read_text()))
+                for name, s in one.sequences.items():
+                    pooled.add(name, s.result, s.intervals, s.labels, s.frames_without_file)
+        if "eval" in plan.stages:
+            reports[tracker] = pooled
+    return reports
+
+
+def summarize(plan: RunPlan, results: dict) -> dict:
+    """The run's summary: what ran, each task's status per sequence, the failures (one-line errors,
+    the RUNS folder written as ``RUNS``), and per tracker the pooled evaluation in the ``egograph
+    eval --json`` format with its per-sequence rows. No time and no output path."""
+    status = {s.id: {} for s in plan.sequences}
+    failures = []
+    runs = str(plan.runs)
+    for t in plan.tasks:
+        r = results[t.key]
+        status[t.sequence][t.label] = r["status"]
+        if r["status"] != OK:
+            failures.append({"sequence": t.sequence, "stage": t.label, "status": r["status"],
+                             "error": (r.get("error") or "").replace(runs, "RUNS")})
+    return {"egograph_version": __version__, "dataset": str(plan.dataset), "stages": plan.stages,
+            "trackers": plan.trackers, "detections": plan.detections, "config_digest": plan.config_digest,
+            "sequences": status, "failures": failures,
+            "evaluation": {k: r.to_json_dict() for k, r in pooled_reports(plan, results).items()}}
+
+
+def finish_run(plan: RunPlan, results: dict, command: str | None = None) -> dict:
+    from egograph.io.atomic import atomic_write_text
+
+    summary = summarize(plan, results)
+    atomic_write_text(plan.folder / SUMMARY_FILE, json.dumps(summary, indent=1) + "\n")
+    write_run_json(plan, results, command)
+    return summary
+
+
+def run_dataset(plan: RunPlan, cfg, *, client=None, workers: int = 2, scheduler: str | None = None,
+                progress=None, command: str | None = None) -> RunOutcome:
+    """Run a plan (:func:`plan_run`) on ``client``, or on a cluster opened for it
+    (:func:`open_client`, closed at the end) -> :class:`RunOutcome`."""
+    own = client is None
+    if own:
+        client = open_client(workers, scheduler)
+    try:
+        start_run(plan, cfg, command)
+        results = execute(plan, client, progress)
+    finally:
+        if own:
+            close_client(client)
+    return RunOutcome(plan, results, finish_run(plan, results, command))
