@@ -612,3 +612,48 @@ def test_lift_warns_about_detections_beyond_the_labels(small_rec, tmp_path, caps
     assert "1  unknown_instance" in stdout
     code, _, err = run(argv + ["--strict", "--overwrite"], capsys, recwarn)
     assert code == 2 and str(f) in _error_line(err)
+
+
+@pytest.mark.slow
+def test_refine_refuses_singular_rig_and_warns_without_mesh(small_rec, tmp_path, capsys, recwarn):
+    """Once: refine with an all-zero AHAT extrinsics.bin moved nothing and said nothing; without
+    mesh/ it ran without its mesh factors and said nothing."""
+    root = _copy(small_rec, tmp_path)
+    ext = root / "calibrations" / "rm_depth_ahat" / "extrinsics.bin"
+    ext.write_bytes(np.zeros(16, "<f4").tobytes())
+    out = tmp_path / "refined"
+    code, _, err = run(["refine", str(root), "--quiet", "--out", str(out)], capsys, recwarn)
+    assert code == 2 and not out.exists(), err
+    line = _error_line(err)
+    assert str(ext) in line and "not a rigid transform" in line, line
+
+    root = _copy(small_rec, tmp_path / "b")
+    shutil.rmtree(seq(root) / "mesh")
+    code, _, err = run(["refine", str(root), "--quiet", "--strict", "--out", str(out)], capsys, recwarn)
+    assert code == 2 and not out.exists() and "no scene mesh" in _error_line(err), err
+
+
+@pytest.mark.parametrize("kind", ["folder", "list", "not_utf8", "row_not_object"])
+def test_unreadable_intervals_and_tum_files_are_named(tmp_path, kind):
+    """Once: a folder, a JSON list or a non-object row in intervals.json, and a non-UTF-8 or folder
+    TUM file, were internal errors (exit 1)."""
+    from egograph.core.errors import InputError
+    from egograph.poses.tum import read_tum
+    from egograph.track.intervals import read_intervals_json
+
+    p = tmp_path / "intervals.json"
+    if kind == "folder":
+        p.mkdir()
+    elif kind == "list":
+        p.write_text("[1, 2]")
+    elif kind == "not_utf8":
+        p.write_bytes(b"\x89\xff\xfe")
+    else:
+        p.write_text('{"intervals": [3]}')
+    with pytest.raises(InputError) as exc:
+        read_intervals_json(p)
+    assert exc.value.path == p
+    if kind in ("folder", "not_utf8"):
+        with pytest.raises(InputError) as exc:
+            read_tum(p)
+        assert exc.value.path == p

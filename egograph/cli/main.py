@@ -512,6 +512,9 @@ def build_parser() -> argparse.ArgumentParser:
     from egograph.cli import run as cli_run
 
     cli_run.add_parser(sub, _add_config_args, DEFAULT_CONFIG)
+    from egograph.cli import plot as cli_plot
+
+    cli_plot.add_parser(sub, _add_config_args, _add_rec_args, DEFAULT_CONFIG)
     return p
 
 

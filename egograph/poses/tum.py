@@ -97,6 +97,12 @@ def read_tum(path: str | Path) -> tuple[np.ndarray, np.ndarray]:
         text = path.read_text()
     except FileNotFoundError:
         raise InputError(path, "TUM trajectory file missing") from None
+    except UnicodeDecodeError:
+        raise InputError(path, "not a TUM trajectory (not UTF-8 text)") from None
+    except IsADirectoryError:
+        raise InputError(path, "a folder, not a TUM trajectory file") from None
+    except OSError as exc:
+        raise InputError(path, f"unreadable ({exc.strerror})") from None
     ts, rows = [], []
     for n, line in enumerate(text.splitlines(), 1):
         s = line.strip()

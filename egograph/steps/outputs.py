@@ -102,9 +102,10 @@ def previous_record(out: Path) -> dict | None:
     if not f.is_file():
         return None
     try:
-        return json.loads(f.read_text())
-    except (OSError, json.JSONDecodeError):
-        return None
+        record = json.loads(f.read_text())
+    except (OSError, UnicodeDecodeError, json.JSONDecodeError):
+        return None  # not a record this egograph wrote: the step runs again
+    return record if isinstance(record, dict) else None
 
 
 def up_to_date(out: Path | None, record: dict, overwrite: bool) -> bool:

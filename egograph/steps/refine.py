@@ -8,7 +8,7 @@ from pathlib import Path
 
 from egograph.core.config import to_dict
 from egograph.core.errors import ConfigError, InputError
-from egograph.io.recording import Recording
+from egograph.io.recording import Recording, report_problem
 from egograph.steps import outputs
 
 
@@ -31,6 +31,14 @@ def refine(rec: Recording, cfg, out: str | Path | None = None, *, overwrite: boo
     if usable < 3:
         raise InputError(rec.seq_dir / "pv_pose.json", f"refine needs at least 3 frames with valid PV and AHAT poses; "
                                                        f"found {usable} of {len(rec)}")
+    if cfg.refine.mesh or cfg.refine.icp:
+        from egograph.geometry.lift import check_rig
+
+        check_rig(rec)  # AHAT points reach the world through the rig extrinsics: not rigid -> nothing to align
+    if cfg.refine.mesh and not rec.mesh_paths():
+        # without the HoloLens mesh its ICP factors are missing: the poses move by the error model only
+        report_problem(getattr(rec, "strict", False), rec.seq_dir / "mesh",
+                       "no scene mesh (tried mesh/*.ply, *.obj, *.stl, *.off): refine.mesh constraints skipped")
     record = outputs.run_record("refine", cfg, {"recording": outputs.recording_digest(rec)},
                                 depends_on={"refine": to_dict(cfg.refine)})
     if out is not None:

@@ -21,7 +21,7 @@ def synth(out: str | Path, cfg, seed: int, *, overwrite: bool = False, progress:
     if not overwrite and meta_path.is_file():
         try:
             meta = json.loads(meta_path.read_text())
-        except (OSError, json.JSONDecodeError):
+        except (OSError, UnicodeDecodeError, json.JSONDecodeError):
             meta = {}
         if meta.get("seed") == seed and meta.get("revision") == GENERATOR_REVISION and meta.get("config") == to_dict(cfg):
             return None

@@ -96,12 +96,20 @@ def read_intervals_json(path: str | Path) -> tuple[list[PositionInterval], dict]
         raise InputError(path, f"not JSON ({exc.msg})", exc.lineno) from None
     except UnicodeDecodeError:
         raise InputError(path, "not JSON (not UTF-8 text)") from None
+    except IsADirectoryError:
+        raise InputError(path, "a folder, not an intervals file") from None
+    except OSError as exc:
+        raise InputError(path, f"unreadable ({exc.strerror})") from None
+    if not isinstance(doc, dict) or not isinstance(doc.get("intervals", []), list):
+        raise InputError(path, "not an intervals file (a JSON object with an 'intervals' list)")
     version = doc.get("schema_version")
     if version is not None and version != SCHEMA_VERSION:
         raise InputError(path, f"intervals schema_version {version!r}: this egograph reads {SCHEMA_VERSION}")
     out = []
     for k, row in enumerate(doc.get("intervals", [])):
         try:
+            if not isinstance(row, dict):
+                raise TypeError("not a JSON object")
             iv = PositionInterval(**{key: v for key, v in row.items() if key not in _DERIVED})
             iv.xyz = tuple(float(v) for v in iv.xyz)
             cov = np.asarray(iv.covariance, dtype=float)
