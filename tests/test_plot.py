@@ -68,6 +68,32 @@ def test_timeline_shows_carries_and_is_deterministic():
     assert b"Software" not in png and b"matplotlib" not in png
 
 
+def test_contact_sheet_projects_truth_and_predictions_around_the_break():
+    from egograph.geometry.hl2ss import pv_intrinsics_matrix
+
+    scene = _scene()
+    n = len(scene.timestamps)
+    # camera at the origin looking down world +z (hl2ss PV looks down its -z): the cup is 2 m ahead
+    pose = np.diag([-1.0, 1.0, -1.0, 1.0])
+    scene.pv = plots.PvFrames(image=lambda i: np.zeros((720, 1280, 3), np.uint8), poses=np.tile(pose, (n, 1, 1)),
+                              valid=np.ones(n, bool), intrinsics=pv_intrinsics_matrix(1000, 1000, 640, 360))
+    png = plots.plot_contact_sheet(scene, [_run(scene)])
+    img = cv2.imdecode(np.frombuffer(png, np.uint8), cv2.IMREAD_COLOR)[..., ::-1]
+    assert (img.shape[1], img.shape[0]) == plots.figure_size_px(plots.sheet_height_in(1))  # one break, one row
+    tracker = np.array([0x1B, 0x9E, 0x77])  # Dark2's first colour: the first tracker's marker
+    assert (img == tracker).all(axis=2).sum() > 20   # predicted before the carry: frames 0 and 22
+    black = (img == 0).all(axis=2)
+    tiles = [(a, b) for a, b in plots.runs(black.sum(axis=0) > 50) if b - a > 50]  # not the 1-pixel frame lines
+    assert len(tiles) == 4   # four frames around the break
+    rows = black[:, tiles[0][0]:tiles[0][1] + 1].sum(axis=1) > (tiles[0][1] - tiles[0][0]) // 2
+    top, bottom = np.flatnonzero(rows)[[0, -1]]   # the frames' rows (mostly black)
+    white_in_tiles = [int((img[top:bottom + 1, a:b + 1] == 255).all(axis=2).sum()) for a, b in tiles]
+    # the true cross (white) while the first interval covers the frame (0, 22), not after it (37, 59) for
+    # this break's instance -- the name is drawn in white too
+    assert white_in_tiles[0] > 20 and white_in_tiles[1] > 20
+    assert white_in_tiles[2] == 0
+
+
 def test_missing_results_folder_exits_2_naming_it(tmp_path, capsys):
     out = tmp_path / "plots"
     assert main(["plot", str(tmp_path), str(tmp_path / "no_such_results"), "--out", str(out)]) == 2

@@ -13,6 +13,7 @@
     egograph eval-poses REC [POSES]
     egograph demo [OUT]
     egograph run DATASET --out RUNS [--stages ...] [--trackers ...] [--workers N | --scheduler ADDRESS]
+    egograph plot REC RESULTS [RESULTS2 ...] [--names a,b] [--detections svoe] [--out DIR]
 
 Bad input ends with one line naming the file (and line, or the config key) and exit code 2.
 """

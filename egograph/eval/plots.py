@@ -472,8 +472,10 @@ def plot_contact_sheet(scene: PlotScene, trackers: Sequence[TrackerRun], scale: 
                         uv = project(g.xyz)
                         if uv is not None:
                             ax.plot(*uv, marker="+", color="white", markersize=12, markeredgewidth=2)
-                            ax.annotate(scene.name(k), tuple(uv), xytext=(5, -10), textcoords="offset points",
-                                        color="white", fontsize=7)
+                            left = uv[0] > small.shape[1] / 2  # the name inside the frame, not cut at its edge
+                            ax.annotate(scene.name(k), tuple(uv), xytext=(-6 if left else 6, -11),
+                                        textcoords="offset points", ha="right" if left else "left", color="white",
+                                        fontsize=7)
                 for m, run in enumerate(trackers):
                     xyz = run.predictions.get(k)
                     if xyz is None or not np.isfinite(xyz[i]).all():
