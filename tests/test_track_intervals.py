@@ -45,7 +45,7 @@ def test_bad_interval_file_names_the_file_and_entry(tmp_path):
     with pytest.raises(InputError, match=r"i\.json.*interval 0"):
         read_intervals_json(p)
     p.write_text("{not json")
-    with pytest.raises(InputError, match="not JSON"):
+    with pytest.raises(InputError, match=r"i\.json:1: not valid JSON"):
         read_intervals_json(p)
 
 

@@ -11,6 +11,7 @@ import numpy as np
 
 from egograph.core.errors import InputError
 from egograph.io.atomic import atomic_write_text
+from egograph.io.textio import read_json_checked
 
 
 def pose_validity(poses: np.ndarray, tol: float = 1e-3) -> np.ndarray:
@@ -35,27 +36,10 @@ _INT_KEY = re.compile(r"[+-]?[0-9]+")
 
 
 def _read_json(path: Path):
-    """The JSON document of ``path``; InputError naming the file for anything unreadable: missing,
+    """The JSON document of a pose file; InputError naming the file for anything unreadable: missing,
     a folder or otherwise not readable, not UTF-8 (a UTF-8 byte order mark is allowed), not JSON,
     nested too deeply to parse."""
-    try:
-        raw = path.read_bytes()
-    except FileNotFoundError:
-        raise InputError(path, "pose file missing") from None
-    except IsADirectoryError:
-        raise InputError(path, "pose file expected, found a folder") from None
-    except OSError as err:
-        raise InputError(path, f"cannot read pose file: {err.strerror or err}") from None
-    try:
-        text = raw.decode("utf-8-sig")
-    except UnicodeDecodeError as err:
-        raise InputError(path, f"not a JSON pose file: not UTF-8 text ({err.reason} at byte {err.start})") from None
-    try:
-        return json.loads(text)
-    except json.JSONDecodeError as exc:
-        raise InputError(path, f"not valid JSON: {exc.msg}", exc.lineno) from None
-    except RecursionError:
-        raise InputError(path, "not a pose file: JSON nested too deeply") from None
+    return read_json_checked(path, "pose file")
 
 
 def read_pose_json(path: str | Path, invalid: str = "error") -> tuple[np.ndarray, np.ndarray, np.ndarray]:

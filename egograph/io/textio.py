@@ -10,6 +10,7 @@ its 1-based line number.
 
 from __future__ import annotations
 
+import json
 import math
 import re
 from decimal import Decimal
@@ -32,6 +33,41 @@ _BOM = b"\xef\xbb\xbf"
 def split_fields(line: str) -> list[str]:
     """Split one line on any run of commas and/or whitespace (empty fields dropped)."""
     return [tok for tok in _SEPARATORS.split(line.strip()) if tok]
+
+
+def read_bytes_checked(path: str | Path, what: str) -> bytes:
+    """The bytes of ``path``, or InputError naming it and ``what`` it should be ("pose file"):
+    missing, a folder, or otherwise unreadable."""
+    path = Path(path)
+    try:
+        return path.read_bytes()
+    except FileNotFoundError:
+        raise InputError(path, f"{what} missing") from None
+    except IsADirectoryError:
+        raise InputError(path, f"{what} expected, found a folder") from None
+    except OSError as err:
+        raise InputError(path, f"cannot read {what}: {err.strerror or err}") from None
+
+
+def read_text_checked(path: str | Path, what: str) -> str:
+    """:func:`read_bytes_checked` decoded as UTF-8 (a byte order mark is allowed), or InputError."""
+    raw = read_bytes_checked(path, what)
+    try:
+        return raw.decode("utf-8-sig")
+    except UnicodeDecodeError as err:
+        raise InputError(path, f"{what} is not UTF-8 text ({err.reason} at byte {err.start})") from None
+
+
+def read_json_checked(path: str | Path, what: str):
+    """The JSON document of ``path`` (:func:`read_text_checked`), or InputError naming the file (and
+    line) when it is not JSON or is nested too deeply to parse."""
+    text = read_text_checked(path, what)
+    try:
+        return json.loads(text)
+    except json.JSONDecodeError as exc:
+        raise InputError(path, f"not valid JSON: {exc.msg}", exc.lineno) from None
+    except RecursionError:
+        raise InputError(path, f"{what} is JSON nested too deeply to read") from None
 
 
 def iter_lines(path: str | Path) -> Iterator[tuple[int, str]]:

@@ -15,6 +15,7 @@ from egograph.core.errors import InputError
 from egograph.core.units import TICKS_PER_SECOND
 from egograph.geometry.hl2ss import rigid_from_rt
 from egograph.io.atomic import atomic_write_text
+from egograph.io.textio import read_text_checked
 
 
 def quat_from_matrix(r: np.ndarray) -> np.ndarray:
@@ -93,16 +94,7 @@ def read_tum(path: str | Path) -> tuple[np.ndarray, np.ndarray]:
     Accepts spaces or commas; ``#`` lines are comments. Errors name the file and line.
     """
     path = Path(path)
-    try:
-        text = path.read_text()
-    except FileNotFoundError:
-        raise InputError(path, "TUM trajectory file missing") from None
-    except UnicodeDecodeError:
-        raise InputError(path, "not a TUM trajectory (not UTF-8 text)") from None
-    except IsADirectoryError:
-        raise InputError(path, "a folder, not a TUM trajectory file") from None
-    except OSError as exc:
-        raise InputError(path, f"unreadable ({exc.strerror})") from None
+    text = read_text_checked(path, "TUM trajectory file")
     ts, rows = [], []
     for n, line in enumerate(text.splitlines(), 1):
         s = line.strip()

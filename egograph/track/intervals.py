@@ -21,6 +21,7 @@ from egograph.core.types import PositionInterval, Prediction
 from egograph.core.units import TICKS_PER_SECOND
 from egograph.core.values import without_wall_clock
 from egograph.io.atomic import atomic_write_text
+from egograph.io.textio import read_json_checked
 
 
 def per_frame_predictions(intervals: Sequence[PositionInterval], timestamps: Sequence[int]) -> dict[int, list[Prediction]]:
@@ -88,18 +89,7 @@ def write_intervals_json(path: str | Path, intervals: Sequence[PositionInterval]
 def read_intervals_json(path: str | Path) -> tuple[list[PositionInterval], dict]:
     """Read what :func:`write_intervals_json` wrote; errors name the file and the entry."""
     path = Path(path)
-    try:
-        doc = json.loads(path.read_text())
-    except FileNotFoundError:
-        raise InputError(path, "intervals file not found") from None
-    except json.JSONDecodeError as exc:
-        raise InputError(path, f"not JSON ({exc.msg})", exc.lineno) from None
-    except UnicodeDecodeError:
-        raise InputError(path, "not JSON (not UTF-8 text)") from None
-    except IsADirectoryError:
-        raise InputError(path, "a folder, not an intervals file") from None
-    except OSError as exc:
-        raise InputError(path, f"unreadable ({exc.strerror})") from None
+    doc = read_json_checked(path, "intervals file")
     if not isinstance(doc, dict) or not isinstance(doc.get("intervals", []), list):
         raise InputError(path, "not an intervals file (a JSON object with an 'intervals' list)")
     version = doc.get("schema_version")
