@@ -3,6 +3,7 @@
 
     .venv/bin/python tools/bench_run.py                       # 4 sequences x 3000 frames
     .venv/bin/python tools/bench_run.py --sequences 4 --frames 300 --trackers memory,kf,graph
+    .venv/bin/python tools/bench_run.py --kill-after 0.5          # also: SIGKILL the whole run half way, re-run
 
 Generates N synthetic sequences (``synth/svoe``, seeds 1..N, depth only; kept in ``--workdir``
 and not generated again), then runs ``egograph run`` on them once with ``--workers 1`` and once
@@ -10,6 +11,11 @@ with ``--workers 2``, each into a fresh RUNS folder (nothing reused), and prints
 each, their ratio, the sum of the tasks' own wall and CPU seconds (``run.json``; CPU above wall
 means a task used more than one core), the sum of task seconds over the wall time (how many
 workers were busy on average), and whether both summaries are the same bytes.
+
+With ``--kill-after F`` a third run (2 workers) is killed with SIGKILL, process group and all
+(scheduler, workers, nanny), after F times the 2-worker wall time, then run again with the same
+command: the tool prints how many finished step outputs the second run did again (a cache folder
+whose inode or mtime changed: must be 0), and whether its summary equals the uninterrupted run's.
 
 What limits the ratio on a 2-core machine: two single-threaded workers are at most 2x one, less
 the time the cluster takes to start and each worker process to import GTSAM and Open3D, the tail
@@ -58,9 +64,7 @@ def make_dataset(root: Path, n: int, frames: int, config: str) -> Path:
 
 def run(ds: Path, runs: Path, workers: int, stages: str, trackers: str) -> tuple[float, dict]:
     shutil.rmtree(runs, ignore_errors=True)
-    env = {**os.environ, "PYTHONPATH": os.pathsep.join([str(PACKAGE_ROOT), os.environ.get("PYTHONPATH", "")])}
-    cmd = [sys.executable, "-c", RUN, "run", str(ds), "--out", str(runs), "--workers", str(workers),
-           "--stages", stages, "--trackers", trackers, "--quiet"]
+    cmd, env = _command(ds, runs, workers, stages, trackers)
     t = time.perf_counter()
     p = subprocess.run(cmd, env=env, capture_output=True, text=True)
     wall = time.perf_counter() - t
@@ -72,6 +76,49 @@ def run(ds: Path, runs: Path, workers: int, stages: str, trackers: str) -> tuple
                   "summary": (runs / "latest" / "summary.json").read_bytes()}
 
 
+def _command(ds: Path, runs: Path, workers: int, stages: str, trackers: str) -> tuple[list[str], dict]:
+    env = {**os.environ, "PYTHONPATH": os.pathsep.join([str(PACKAGE_ROOT), os.environ.get("PYTHONPATH", "")])}
+    return [sys.executable, "-c", RUN, "run", str(ds), "--out", str(runs), "--workers", str(workers),
+            "--stages", stages, "--trackers", trackers, "--quiet"], env
+
+
+def _cache_stamps(runs: Path) -> dict[str, tuple[int, int]]:
+    """Finished step outputs (``RUNS/cache/<seq>/<stage>-<key>``, folders and ``.npz`` files) -> (inode, mtime ns)."""
+    out = {}
+    for p in sorted((runs / "cache").glob("*/*")):
+        if not p.name.startswith("."):
+            st = p.stat()
+            out[str(p.relative_to(runs))] = (st.st_ino, st.st_mtime_ns)
+    return out
+
+
+def kill_and_resume(ds: Path, runs: Path, after_s: float, stages: str, trackers: str) -> dict:
+    """Run with 2 workers, SIGKILL the whole process group after ``after_s`` seconds, run again."""
+    import signal
+
+    shutil.rmtree(runs, ignore_errors=True)
+    cmd, env = _command(ds, runs, 2, stages, trackers)
+    p = subprocess.Popen(cmd, env=env, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL, start_new_session=True)
+    try:
+        p.wait(timeout=after_s)
+        finished_early = True
+    except subprocess.TimeoutExpired:
+        os.killpg(p.pid, signal.SIGKILL)
+        p.wait()
+        finished_early = False
+    time.sleep(1.0)  # let the killed workers' processes go
+    before = _cache_stamps(runs)
+    t = time.perf_counter()
+    q = subprocess.run(cmd, env=env, capture_output=True, text=True)
+    wall = time.perf_counter() - t
+    if q.returncode != 0:
+        sys.exit(f"egograph run after the kill exited {q.returncode}:\n{q.stdout[-2000:]}\n{q.stderr[-2000:]}")
+    after = _cache_stamps(runs)
+    redone = [k for k, v in before.items() if after.get(k) != v]
+    return {"finished_before_kill": finished_early, "steps_done_before_kill": len(before), "steps_in_all": len(after),
+            "redone": redone, "resume_wall": wall, "summary": (runs / "latest" / "summary.json").read_bytes()}
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--sequences", type=int, default=4)
@@ -81,6 +128,8 @@ def main() -> None:
     ap.add_argument("--trackers", default="memory,kf,graph")
     ap.add_argument("--workdir", type=Path, help="where the dataset and runs go (default: a temporary folder, "
                                                  "removed at the end)")
+    ap.add_argument("--kill-after", type=float, metavar="F",
+                    help="also kill a 2-worker run after F x its uninterrupted wall time and run it again")
     args = ap.parse_args()
     work = args.workdir or Path(tempfile.mkdtemp(prefix="bench_run_"))
     try:
@@ -90,6 +139,10 @@ def main() -> None:
             wall, info = run(ds, work / f"runs-w{workers}", workers, args.stages, args.trackers)
             rows[workers] = (wall, info)
             print(f"--workers {workers}: {wall:.1f} s wall", flush=True)
+        killed = None
+        if args.kill_after is not None:
+            killed = kill_and_resume(ds, work / "runs-killed", args.kill_after * rows[2][0], args.stages,
+                                     args.trackers)
     finally:
         if args.workdir is None:
             shutil.rmtree(work, ignore_errors=True)
@@ -101,6 +154,12 @@ def main() -> None:
               f"{info['task_seconds'] / wall:12.2f}")
     (w1, i1), (w2, i2) = rows[1], rows[2]
     print(f"speed-up 2 workers / 1: {w1 / w2:.2f}x; summaries identical: {i1['summary'] == i2['summary']}")
+    if killed is not None:
+        k = killed
+        print(f"killed after {args.kill_after * w2:.1f} s ({'it had already finished' if k['finished_before_kill'] else 'SIGKILL'}): "
+              f"{k['steps_done_before_kill']}/{k['steps_in_all']} step outputs finished before the kill; "
+              f"re-run {k['resume_wall']:.1f} s; finished steps done again: {len(k['redone'])} {k['redone'][:3]}; "
+              f"summary equals the uninterrupted run's: {k['summary'] == i2['summary']}")
 
 
 if __name__ == "__main__":

@@ -30,9 +30,14 @@ if [ ! -f "$STAMP" ] || [ "$(cat "$STAMP")" != "$WANT" ] || ! "$VENV/bin/python"
   if [ "$(uname -sm)" = "Linux x86_64" ] && "$VENV/bin/python" -m pip show -q open3d >/dev/null 2>&1; then
     "$VENV/bin/python" -m pip uninstall -q -y open3d >&2
   fi
+  # opencv-contrib-python-headless (required) and opencv-python-headless install the same cv2
+  # files: a .venv made before the switch drops the plain build first rather than mixing the two.
+  if "$VENV/bin/python" -m pip show -q opencv-python-headless >/dev/null 2>&1; then
+    "$VENV/bin/python" -m pip uninstall -q -y opencv-python-headless >&2
+  fi
   # Editable (the checkout's files are the ones run), with the test runner and the optional
-  # COLMAP (refine.colmap) and KISS-ICP (refine.icp) extras.
-  "$VENV/bin/python" -m pip install -q -e "$REPO[test,colmap,icp]" >&2
+  # COLMAP (refine.colmap), KISS-ICP (refine.icp) and rerun (export --rrd) extras.
+  "$VENV/bin/python" -m pip install -q -e "$REPO[test,colmap,icp,viewer]" >&2
   echo "$WANT" > "$STAMP"
 fi
 export PATH="$VENV/bin:$PATH"
