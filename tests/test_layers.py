@@ -13,7 +13,7 @@ import pytest
 
 PACKAGE = Path(__file__).resolve().parents[1] / "egograph"
 
-LAYERS = ["core", "io", "geometry", "poses", "track", "eval", "synth", "steps", "cli"]
+LAYERS = ["core", "io", "geometry", "frontend", "poses", "track", "eval", "synth", "steps", "cli"]
 """Bottom to top. A module may import from its own layer and the ones below it. ``poses`` and
 ``track`` are peers in the design; ``track`` sits above ``poses`` here because joint mode
 (``track/joint.py``) adds the tracker's landmarks to the pose graph, never the other way round."""

@@ -4,6 +4,7 @@
     egograph synth OUT --config synth/svoe --seed 1 --frames 3000
     egograph info REC
     egograph lift REC --detections svoe --out OBS.npz
+    egograph detect REC --enroll svoe|mvpe --out DIR [--encoder FILE.onnx] [--proposals NAME]
     egograph track REC --tracker graph|graph-causal|memory|kf --detections svoe --out RESULTS
     egograph regt REC --out DIR
     egograph smooth REC RESULTS --out RESULTS_SMOOTHED
@@ -14,6 +15,9 @@
     egograph demo [OUT]
     egograph run DATASET --out RUNS [--stages ...] [--trackers ...] [--workers N | --scheduler ADDRESS]
     egograph plot REC RESULTS [RESULTS2 ...] [--names a,b] [--detections svoe] [--out DIR]
+    egograph export REC RESULTS [--out DIR] [--rrd]
+    egograph sot REC --out DETS [--method csrt|kcf]
+    egograph eval-2d REC DETECTIONS [DETECTIONS2 ...] [--json OUT]
 
 Bad input ends with one line naming the file (and line, or the config key) and exit code 2.
 """
@@ -173,6 +177,23 @@ def cmd_lift(args) -> int:
     return 0
 
 
+def cmd_detect(args) -> int:
+    from egograph.steps.detect import detect
+
+    cfg = pipeline_config(args)
+    rec = _open(args, cfg)
+    report = detect(rec, args.enroll, cfg, args.out, encoder=args.encoder, proposals=args.proposals,
+                    overwrite=args.overwrite, progress=not args.quiet)
+    con = _console()
+    if report is None:
+        con.print(f"{args.out} already holds these detections (same recording, enrollment, encoder and frontend "
+                  f"configuration); --overwrite detects again")
+        return 0
+    con.print(f"detections ({args.enroll}) -> {args.out}")
+    con.print(report.summary())
+    return 0
+
+
 def cmd_track(args) -> int:
     from egograph.geometry.observations import Observations
     from egograph.steps.track import track
@@ -182,6 +203,12 @@ def cmd_track(args) -> int:
     get_tracker(args.tracker)
     if args.joint_poses and args.tracker != "graph":
         raise ConfigError(f"--joint-poses needs --tracker graph (offline), not {args.tracker}")
+    if args.lag is not None:
+        if args.tracker != "graph-causal":
+            raise ConfigError(f"--lag needs --tracker graph-causal, not {args.tracker}")
+        if not args.lag >= 0:
+            raise ConfigError(f"--lag {args.lag}: seconds, >= 0")
+        cfg.graph.lag_s = float(args.lag)
     rec = _open(args, cfg)
     con = _console()
     t0 = time.perf_counter()
@@ -425,11 +452,30 @@ def build_parser() -> argparse.ArgumentParser:
     _add_config_args(s, DEFAULT_CONFIG)
     s.set_defaults(func=cmd_lift)
 
+    s = sub.add_parser("detect", help="detect the enrolled instances in the PV frames (proposals + ONNX encoder); "
+                                      "writes one detection file per PV frame for --detections DIR")
+    _add_rec_args(s)
+    _add_poses_arg(s)
+    s.add_argument("--enroll", required=True, choices=["svoe", "mvpe"],
+                   help="enrollment: svoe (the box in svoe.txt) or mvpe (the instance photos)")
+    s.add_argument("--out", required=True, type=Path, help="detections folder: <ts>.txt per PV frame "
+                                                           "(instance x1 y1 x2 y2 det_conf similarity)")
+    s.add_argument("--encoder", help="ONNX image encoder (default frontend.encoder; empty: the embedded "
+                                     "EfficientNet-lite0)")
+    s.add_argument("--proposals", help="geometry, image, geometry+image or an ONNX mask model "
+                                       "(default frontend.proposals)")
+    _add_quiet(s)
+    _add_overwrite(s)
+    _add_config_args(s, DEFAULT_CONFIG)
+    s.set_defaults(func=cmd_detect)
+
     s = sub.add_parser("track", help="track instances; writes a results folder (per-frame files, intervals.json)")
     _add_rec_args(s)
     _add_poses_arg(s)
     s.add_argument("--tracker", required=True, choices=list(TRACKERS), metavar="{" + ",".join(TRACKERS) + "}",
                    help=_tracker_help())
+    s.add_argument("--lag", type=float, metavar="S", help="graph-causal: a frame's answer may use the frames up to "
+                                                          "S seconds after it (graph.lag_s; default 0, causal)")
     s.add_argument("--intervals", type=Path, help="interval trackers: also write the intervals JSON here "
                                                   "(it is always in RESULTS/intervals.json)")
     s.add_argument("--detections", default="svoe", help="folder of per-frame detection files, or a set name "
@@ -516,6 +562,12 @@ def build_parser() -> argparse.ArgumentParser:
     from egograph.cli import plot as cli_plot
 
     cli_plot.add_parser(sub, _add_config_args, _add_rec_args, DEFAULT_CONFIG)
+    from egograph.cli import export as cli_export
+
+    cli_export.add_parser(sub, _add_config_args, _add_rec_args, DEFAULT_CONFIG)
+    from egograph.cli import tracking2d as cli_tracking2d
+
+    cli_tracking2d.add_parsers(sub, _add_config_args, _add_rec_args, DEFAULT_CONFIG)
     return p
 
 

@@ -74,7 +74,8 @@ class RefineConfig(Checked):
     icp_kernel: float = knob(2.0, "Cauchy kernel width of KISS-ICP factors, in sigmas", min=0.0)
     icp_min_points: int = knob(300, "frames with fewer usable AHAT points get no KISS-ICP factor", min=0)
     # ---- mesh ICP
-    mesh_stride: int = knob(10, "run frame-to-mesh ICP on every Nth frame", min=1)
+    mesh_stride: int = knob(5, "run frame-to-mesh ICP on every Nth frame (5: one held-out keyframe per 20 frames "
+                                "for the self-check, twice the evidence per segment of 10)", min=1)
     mesh_voxel: float = knob(0.03, "voxel size the AHAT source cloud is reduced to, metres", gt=0.0)
     mesh_max_distance: list[float] = knob([0.15, 0.06, 0.025], "coarse-to-fine correspondence distances, metres",
                                           gt=0.0)
@@ -98,6 +99,37 @@ class RefineConfig(Checked):
     mesh_min_sigma: float = knob(0.01, "floor of the point-to-plane residual std used for the information, metres",
                                  gt=0.0)
     mesh_kernel: float = knob(2.0, "Cauchy kernel width of mesh ICP factors, in sigmas", min=0.0)
+    mesh_weak_ratio: float = knob(0.03, "a direction of a mesh factor's information (rotation counted as arc length "
+                                        "at the view's RMS range) whose eigenvalue is below this share of the largest "
+                                        "gets no information: a lone table top fixes height and two tilts, not the "
+                                        "slide along it", min=0.0, max=1.0)
+    mesh_starts: int = knob(4, "mesh ICP starts tried when the first does not converge cleanly (carried "
+                               "correction, reported pose, then +-mesh_start_yaw)", min=1, max=4)
+    mesh_start_yaw: float = knob(2.0, "yaw about the world vertical of the 3rd and 4th ICP starts, degrees", min=0.0)
+    # ---- self-check (no ground truth) and the no-harm rule
+    selfcheck: bool = knob(True, "hold mesh keyframes out of the solve, compare their mesh residual at the input "
+                                 "and the refined poses per segment, and keep the input poses where the refinement "
+                                 "shows no improvement (needs refine.mesh)")
+    selfcheck_every: int = knob(4, "one mesh keyframe in this many is held out of the solve", min=2)
+    selfcheck_segment: float = knob(10.0, "length of the segments the keep-or-refine decision is made for, seconds",
+                                    gt=0.0)
+    selfcheck_min_frames: int = knob(3, "a segment with fewer held-out keyframes that have depth keeps its input "
+                                        "poses (no improvement can be shown)", min=1)
+    selfcheck_truncate: float = knob(0.05, "mesh distances of held-out AHAT points are truncated at this before the "
+                                           "residual RMS (points off the mesh: objects, people, holes), metres",
+                                     gt=0.0)
+    selfcheck_z: float = knob(2.0, "a segment takes the refined poses only when the mean drop of the held-out "
+                                   "squared residual is this many standard errors above zero ...", min=0.0)
+    selfcheck_min_gain: float = knob(0.0005, "... and the held-out residual RMS drops by at least this, metres "
+                                             "(below it, mesh noise, not pose error)", min=0.0)
+    selfcheck_blend: float = knob(1.0, "the refined poses are blended in over this long inside a refined segment "
+                                       "next to a kept one (kept segments stay exactly the input, no step at the "
+                                       "boundary), seconds", min=0.0)
+    # ---- uncertainty
+    covariance: bool = knob(True, "per-frame marginal covariance of the refined PV positions (gtsam.Marginals), "
+                                  "written as pv_position_covariance.json")
+    covariance_scale: float = knob(1.0, "the marginal covariance is multiplied by this (calibrated on the tuning "
+                                        "seeds so that the NEES of the refined positions is about 3)", gt=0.0)
     # ---- COLMAP
     colmap_stride: int = knob(10, "PV keyframe stride for COLMAP", min=1)
     colmap_max_keyframes: int = knob(300, "at most this many PV keyframes (the stride grows to fit)", min=1)

@@ -55,6 +55,9 @@ class RefinementGraph:
     stats: dict = field(default_factory=dict)
     initial: np.ndarray | None = None        # (N, 4, 4) column starting PV poses (spike-cleaned)
     world_initial: np.ndarray | None = None  # (N, 4, 4) column starting world corrections (None without hololens)
+    points: object | None = None             # the AhatPointSource of the ICP stages (None without them)
+    mesh: object | None = None               # the scene mesh the mesh ICP used
+    spikes: np.ndarray | None = None         # (N,) bool: reported poses flagged as spikes
 
     def rebuild(self):
         """A fresh graph and starting values from the (possibly re-weighted) constraints."""
@@ -77,6 +80,9 @@ class RefineResult:
     factor_counts: dict[str, int]
     stats: dict
     change: dict                     # how far the refinement moved the poses from the reported ones
+    position_cov: np.ndarray | None = None   # (N, 3, 3) world-frame PV position covariance, m² (NaN: none)
+    selfcheck: dict = field(default_factory=dict)   # held-out residuals, segments, what was kept and why
+    solved_pv_poses: np.ndarray | None = None        # (N, 4, 4) row-vector: the solve before the no-harm rule
 
 
 # ------------------------------------------------------------------ HoloLens factors
@@ -175,7 +181,8 @@ def _say(progress, msg: str) -> None:
 
 
 def refinement_factors(rec, cfg: RefineConfig | None = None, progress: bool = False,
-                       initial: np.ndarray | None = None, confirm_jumps_now: bool = True) -> RefinementGraph:
+                       initial: np.ndarray | None = None, confirm_jumps_now: bool = True,
+                       holdout: bool = False) -> RefinementGraph:
     """Every refinement factor of ``rec`` as one ``gtsam.NonlinearFactorGraph`` + initial ``gtsam.Values``.
 
     Keys: ``gtsam.symbol('x', i)`` = PV camera -> world ``Pose3`` of frame i (column
@@ -193,6 +200,8 @@ def refinement_factors(rec, cfg: RefineConfig | None = None, progress: bool = Fa
     landmarks) and solve with :func:`egograph.poses.graph.solve`. ``confirm_jumps_now=False``
     leaves the jump candidates loose, for a caller that tests them with more factors
     (:func:`confirm_jumps` on its own solution, then :meth:`RefinementGraph.rebuild`).
+    ``holdout=True`` (with ``cfg.selfcheck``) keeps one mesh keyframe in ``cfg.selfcheck_every``
+    out of the graph, for :mod:`egograph.poses.selfcheck`.
     """
     import gtsam  # noqa: F401  (fail early when missing)
 
@@ -205,6 +214,7 @@ def refinement_factors(rec, cfg: RefineConfig | None = None, progress: bool = Fa
     t = time.perf_counter()
     cons = hololens_constraints(rec, cfg)
     times["hololens"] = time.perf_counter() - t
+    spike = None
     if initial is None:
         pv0, spike = initial_poses(rec, cfg)
         stats["spikes"] = int(spike.sum())
@@ -236,7 +246,8 @@ def refinement_factors(rec, cfg: RefineConfig | None = None, progress: bool = Fa
         from egograph.poses.mesh_icp import mesh_constraints
 
         t = time.perf_counter()
-        c, st = mesh_constraints(rec, cfg, pv0, points, mesh, progress=progress)
+        mcfg = cfg if holdout else dataclasses.replace(cfg, selfcheck=False)
+        c, st = mesh_constraints(rec, mcfg, pv0, points, mesh, progress=progress)
         cons.append(c)
         stats["mesh"] = st.__dict__
         times["mesh"] = time.perf_counter() - t
@@ -268,7 +279,7 @@ def refinement_factors(rec, cfg: RefineConfig | None = None, progress: bool = Fa
     from egograph.poses.constraints import ahat_offsets
 
     return RefinementGraph(graph, values, np.flatnonzero(valid), ahat_offsets(rec), cons, counts, times, stats,
-                           pv0, w0)
+                           pv0, w0, points, mesh, spike)
 
 
 def confirm_jumps(drift: Constraints, values, cfg: RefineConfig) -> dict:
@@ -296,22 +307,89 @@ def confirm_jumps(drift: Constraints, values, cfg: RefineConfig) -> dict:
 
 
 def refine_recording(rec, cfg: RefineConfig | None = None, progress: bool = False) -> RefineResult:
-    """Refine the PV and AHAT poses of ``rec`` (nothing is written)."""
+    """Refine the PV and AHAT poses of ``rec`` (nothing is written).
+
+    With ``cfg.selfcheck`` (and mesh factors) held-out mesh keyframes decide per segment whether
+    the refined or the input poses are output (:mod:`egograph.poses.selfcheck`); with
+    ``cfg.covariance`` every frame gets the marginal position covariance (world frame, m²): the
+    solve's where the refined pose is output, plus the outer product of the offset from the
+    refined pose where the input (or a blend) is kept.
+    """
     from egograph.poses.graph import solve, values_to_columns
 
     cfg = cfg or RefineConfig()
-    rg = refinement_factors(rec, cfg, progress=progress)
+    rg = refinement_factors(rec, cfg, progress=progress, holdout=cfg.selfcheck)
     t = time.perf_counter()
     result, rep = solve(rg.graph, rg.values, cfg.max_iterations)
     rg.stage_seconds["solve"] = time.perf_counter() - t
     _say(progress, f"solved {rg.graph.size()} factors over {rg.values.size()} poses: error {rep['error_initial']:.1f} -> "
                    f"{rep['error_final']:.1f} in {rep['iterations']} iterations, {rep['seconds']:.1f} s")
-    pv_col = values_to_columns(result, len(rec))
+    refined_col = values_to_columns(result, len(rec))
+    cov = None
+    if cfg.covariance:
+        from egograph.poses.covariance import position_covariances
+
+        t = time.perf_counter()
+        cov = position_covariances(rg.graph, result, len(rec)) * cfg.covariance_scale
+        rg.stage_seconds["covariance"] = time.perf_counter() - t
+    pv_col, check = refined_col, {}
+    if cfg.selfcheck:
+        t = time.perf_counter()
+        pv_col, check = apply_selfcheck(rec, cfg, rg, refined_col)
+        rg.stage_seconds["selfcheck"] = time.perf_counter() - t
+        _say(progress, f"self-check: {check['summary']}")
+    if cov is not None and check.get("alpha") is not None:
+        e = pv_col[:, :3, 3] - refined_col[:, :3, 3]            # the part of the refinement not applied
+        cov = cov + np.where(np.isfinite(e)[:, :, None], e[:, :, None] * e[:, None, :], 0.0)
     pv_row = np.swapaxes(pv_col, 1, 2)
     depth_row, depth_valid = corrected_depth_poses(rec, pv_row)
     stats = dict(rg.stats, solver=rep)
+    mesh = next((c for c in rg.constraints if c.source == "mesh"), None)
+    if mesh is not None and "keyframes" in mesh.info:
+        stats["mesh_keyframes"] = [dataclasses.asdict(k) for k in mesh.info["keyframes"]]
     return RefineResult(rec.timestamps.copy(), pv_row, depth_row, np.isfinite(pv_row).all(axis=(1, 2)), depth_valid,
-                        rg.stage_seconds, rg.factor_counts, stats, pose_change(rec.pv_poses, pv_row))
+                        rg.stage_seconds, rg.factor_counts, stats, pose_change(rec.pv_poses, pv_row), cov, check,
+                        np.swapaxes(refined_col, 1, 2))
+
+
+def apply_selfcheck(rec, cfg: RefineConfig, rg: RefinementGraph, refined_col: np.ndarray) -> tuple[np.ndarray, dict]:
+    """The no-harm rule: output PV poses (column (N, 4, 4)) and the self-check's record.
+
+    Without held-out keyframes (no mesh, or none with depth) no improvement can be shown and the
+    input poses are kept everywhere (spikes excepted)."""
+    from egograph.poses.selfcheck import blend_poses, blend_weights, decide_segments, holdout_residuals, seconds
+
+    input_col = pv_columns(rec)
+    mesh = next((c for c in rg.constraints if c.source == "mesh"), None)
+    frames = mesh.info.get("held_out", np.zeros(0, int)) if mesh is not None else np.zeros(0, int)
+    times = seconds(rec.timestamps)
+    before = after = np.zeros(0)
+    if len(frames) and rg.points is not None and rg.mesh is not None:
+        from egograph.io.recording import mesh_raycasting_scene
+
+        scene = mesh_raycasting_scene(rg.mesh)
+        before, after = holdout_residuals(rg.points, scene, frames, rg.ahat_offsets, input_col, refined_col,
+                                          cfg.selfcheck_truncate)
+    else:
+        frames = np.zeros(0, int)
+    segments = decide_segments(times, frames, before, after, cfg)
+    alpha = blend_weights(times, segments, cfg.selfcheck_blend)
+    if rg.spikes is not None:
+        alpha[rg.spikes] = 1.0                   # a reported spike is wrong without any ground truth
+    out = blend_poses(input_col, refined_col, alpha)
+    out[~np.isfinite(refined_col).all(axis=(1, 2))] = np.nan
+    n_ref = sum(s.poses == "refined" for s in segments)
+    covered = float(np.mean(alpha >= 1.0)) if len(alpha) else 0.0
+    rb = float(np.sqrt(np.nanmean(before))) if np.isfinite(before).any() else float("nan")
+    ra = float(np.sqrt(np.nanmean(after))) if np.isfinite(after).any() else float("nan")
+    summary = (f"{n_ref} of {len(segments)} segments refined ({covered:.0%} of frames), "
+               f"{len(segments) - n_ref} kept as input; held-out residual {rb * 1000:.1f} -> {ra * 1000:.1f} mm "
+               f"over {int(np.isfinite(before).sum())} keyframes")
+    return out, {"summary": summary, "helped": bool(n_ref > 0), "refined_share": covered,
+                 "residual_input_m": rb, "residual_refined_m": ra,
+                 "held_out": [{"frame": int(f), "input_m": float(np.sqrt(b)), "refined_m": float(np.sqrt(a))}
+                              for f, b, a in zip(frames, before, after) if np.isfinite(b) and np.isfinite(a)],
+                 "segments": [dataclasses.asdict(s) for s in segments], "alpha": alpha}
 
 
 def world_corrections(rec, pv_refined_row: np.ndarray) -> np.ndarray:
@@ -377,13 +455,19 @@ def write_refined(result: RefineResult, out: str | Path, rec, cfg: RefineConfig,
         raise InputError(out, "looks like a recording; refusing to replace it")
     report = without_wall_clock({"recording": str(rec.seq_dir), "frames": len(rec), "stages": list(result.stage_seconds),
                                  "factors": result.factor_counts, "change": result.change, "stats": result.stats,
-                                 "config": to_dict(cfg), **(extra or {})})
+                                 "config": to_dict(cfg),
+                                 "selfcheck": {k: v for k, v in result.selfcheck.items() if k != "alpha"},
+                                 **(extra or {})})
     with atomic_dir(out) as tmp:
         write_pose_json(tmp / "pv_pose.json", result.timestamps, _invalid_as_zero(result.pv_poses))
         write_pose_json(tmp / "depth_ahat_pose.json", result.timestamps, _invalid_as_zero(result.depth_poses))
         write_tum(tmp / "pv_pose.tum", result.timestamps, result.pv_poses)
         rig = np.where(result.depth_valid[:, None, None], result.depth_poses, np.nan)
         write_tum(tmp / "depth_ahat_pose.tum", result.timestamps, rig)
+        if result.position_cov is not None:
+            from egograph.poses.covariance import write_position_covariance
+
+            write_position_covariance(tmp / "pv_position_covariance.json", result.timestamps, result.position_cov)
         (tmp / "report.json").write_text(json.dumps(report, indent=1, default=_jsonable))
         (tmp / "report.md").write_text(report_markdown(report))
         for name, text in (run_files or {}).items():
@@ -417,6 +501,13 @@ def report_markdown(report: dict) -> str:
         lines += ["", f"Change against the reported PV poses: translation RMS {ch['trans_rms_m'] * 1000:.1f} mm "
                       f"(max {ch['trans_max_m'] * 1000:.1f} mm), rotation RMS {ch['rot_rms_deg']:.3f} deg "
                       f"(max {ch['rot_max_deg']:.3f} deg)."]
+    sc = report.get("selfcheck") or {}
+    if sc.get("segments"):
+        lines += ["", f"Self-check (mesh residual of keyframes held out of the solve): {sc['summary']}.", "",
+                  "| segment (s) | held-out | residual input (mm) | residual refined (mm) | poses | why |",
+                  "|---|---|---|---|---|---|"]
+        lines += [f"| {g['start_s']:.0f}-{g['end_s']:.0f} | {g['held_out']} | {g['residual_input_m'] * 1000:.1f} | "
+                  f"{g['residual_refined_m'] * 1000:.1f} | {g['poses']} | {g['reason']} |" for g in sc["segments"]]
     for name in ("eval_reported", "eval_refined"):
         if name in report:
             e = report[name]

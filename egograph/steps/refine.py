@@ -1,5 +1,7 @@
 """Step ``refine``: the HoloLens poses refined with a pose graph (``cfg.refine``), written as
-``pv_pose.json``, ``depth_ahat_pose.json``, TUM files, ``report.json``/``report.md``,
+``pv_pose.json``, ``depth_ahat_pose.json``, TUM files, ``pv_position_covariance.json`` (per-frame
+world-frame position covariance, m², with ``refine.covariance``), ``report.json``/``report.md`` (with
+the self-check: per segment whether the refined or the input poses were kept, and why),
 ``config.yaml`` and ``egograph.json`` in one folder (one rename)."""
 
 from __future__ import annotations

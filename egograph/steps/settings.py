@@ -12,6 +12,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 from egograph.core.config import Checked, section
+from egograph.frontend.config import FrontendConfig
 from egograph.geometry.config import LiftConfig
 from egograph.io.config import IoConfig
 from egograph.poses.config import RefineConfig
@@ -28,3 +29,5 @@ class EgographConfig(Checked):
     refine: RefineConfig = section(RefineConfig, "pose-graph refinement of the HoloLens poses (egograph refine; "
                                                  "also the pose factors of --joint-poses)")
     joint: JointConfig = section(JointConfig, "joint mode: poses and still-object landmarks in one graph (--joint-poses)")
+    frontend: FrontendConfig = section(FrontendConfig, "the appearance front-end: proposals, ONNX encoder, "
+                                                       "enrollment matching (egograph detect)")

@@ -145,6 +145,16 @@ class GraphConfig(Checked):
                                     min=0.0)
     negative_evidence: bool = knob(True, "end intervals where depth shows the place empty, and keep apart stands "
                                          "at one place with such evidence between them (reads depth frames)")
+    lag_s: float = knob(0.0, "causal mode (graph-causal, egograph.track.online): the answer for a frame may use the "
+                             "frames up to this many seconds after it (0: strictly causal; large: towards offline), s",
+                        min=0.0)
+    provisional_min_observations: int = knob(2, "causal mode: inlier detections of a place not yet confirmed as a stand "
+                                                "before it is reported as the last-seen place (fewer keep the previous "
+                                                "answer)", min=1)
+    online_max_rows: int = knob(300, "causal mode: newest detections of the trailing segment kept per instance "
+                                     "(bounds memory and time per frame)", min=1)
+    online_window_chunks: int = knob(40, "causal mode: each instance's iSAM2 is restarted after this many chunks, "
+                                         "with the newest landmark's marginal as a prior (bounded history)", min=2)
     noise: DetectionNoiseConfig = section(DetectionNoiseConfig, "detection factor noise and robust kernel")
     negative: NegativeConfig = section(NegativeConfig, "negative evidence from depth")
 

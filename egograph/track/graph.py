@@ -32,7 +32,8 @@ Per instance (camera poses fixed, so instances are independent graphs):
 
 Modules: :mod:`egograph.track.chain` (steps 2-6: keys, chunks, the chain's graph and its offline
 solve), :mod:`egograph.track.segments` (steps 7-8: stands, carries, merging, confusions,
-intervals), :mod:`egograph.track.causal` (the iSAM2 solve); this one runs them per instance
+intervals), :mod:`egograph.track.online` (the iSAM2 solve, frame by frame; :mod:`egograph.track.causal`
+replays a recording through it); this one runs them per instance
 over a recording (:func:`graph_tracker`).
 """
 
@@ -45,7 +46,7 @@ import numpy as np
 from egograph.core.types import TrackResult
 from egograph.core.units import TICKS_PER_SECOND
 from egograph.geometry.observations import Observations
-from egograph.track.causal import track_instance_causal
+from egograph.track.causal import causal_tracker
 from egograph.track.chain import chunk_index, solve_instance_offline
 from egograph.track.config import GraphConfig
 from egograph.track.detection_factor import detection_covariances
@@ -102,7 +103,7 @@ def _select_instance_rows(obs: Observations, instance: int, threshold: float) ->
 
 def graph_tracker(obs: Observations, timestamps: Sequence[int], cfg: GraphConfig, *, causal: bool = False,
                   negative: NegativeFn | None = None, support: SupportFn | None = None,
-                  instances: Sequence[int] | None = None,
+                  instances: Sequence[int] | None = None, lag_s: float | None = None,
                   progress: bool = False) -> TrackResult:
     """Run the graph tracker over a recording's observations.
 
@@ -110,11 +111,14 @@ def graph_tracker(obs: Observations, timestamps: Sequence[int], cfg: GraphConfig
     the index into the sorted timestamps). ``negative``: optional negative-evidence test
     (:class:`egograph.track.negative.NegativeEvidence`); ``support``: optional test that a
     stand rests on the scene (``NegativeEvidence.supported``). Returns intervals, the per-frame
-    predictions in the reference format and metadata for the output JSON.
+    predictions in the reference format and metadata for the output JSON. ``causal``: frame by
+    frame through :class:`egograph.track.online.OnlineTracker`, each answer using the frames up
+    to ``lag_s`` seconds after it (default ``cfg.lag_s``).
     """
     t_frames = np.asarray(sorted(int(t) for t in timestamps), dtype=np.int64)
     ids = sorted({int(i) for i in obs.instance}) if instances is None else list(instances)
-    solve = track_instance_causal if causal else _track_instance_offline
+    if causal:
+        return _causal_result(obs, t_frames, cfg, ids, lag_s, negative, support)
     solutions = []
     it = ids
     if progress:
@@ -123,7 +127,7 @@ def graph_tracker(obs: Observations, timestamps: Sequence[int], cfg: GraphConfig
         it = tqdm(ids, desc="graph" + (" (causal)" if causal else ""), unit="instance")
     for inst in it:
         sub = _select_instance_rows(obs, inst, cfg.score_threshold)
-        solutions.append(solve(inst, sub, t_frames, cfg, negative, support))
+        solutions.append(_track_instance_offline(inst, sub, t_frames, cfg, negative, support))
     n_excluded = 0
     if not causal and cfg.exclusion_radius_m > 0:
         n_excluded = exclude_confusions(solutions, t_frames, cfg, negative)
@@ -141,5 +145,27 @@ def graph_tracker(obs: Observations, timestamps: Sequence[int], cfg: GraphConfig
         "n_observations": int(sum(s.n_observations for s in solutions)),
         "n_chunks": int(sum(s.n_chunks for s in solutions)),
         "n_stands_excluded": n_excluded,
+    }
+    return TrackResult(per_frame=per_frame, intervals=intervals, metadata=metadata, solutions=solutions)
+
+
+def _causal_result(obs: Observations, t_frames: np.ndarray, cfg: GraphConfig, ids: list[int], lag_s: float | None,
+                   negative: NegativeFn | None, support: SupportFn | None) -> TrackResult:
+    """The causal/lagged mode of :func:`graph_tracker` (:mod:`egograph.track.causal`)."""
+    lag = cfg.lag_s if lag_s is None else float(lag_s)
+    per_frame, intervals, solutions = causal_tracker(obs, t_frames, cfg, ids, lag_s=lag, negative=negative,
+                                                     support=support)
+    metadata = {
+        "tracker": "graph-causal",
+        "lag_s": lag,
+        "backfilled": False,
+        "backfill_note": "causal: no back-fill" if lag == 0 else
+                         f"lagged: answers revised with the evidence of up to {lag:g} s later",
+        "switches": cfg.switches,
+        "negative_evidence": negative is not None,
+        "support_test": support is not None,
+        "n_observations": int(sum(s.n_observations for s in solutions)),
+        "n_chunks": int(sum(s.n_chunks for s in solutions)),
+        "n_stands_excluded": 0,
     }
     return TrackResult(per_frame=per_frame, intervals=intervals, metadata=metadata, solutions=solutions)

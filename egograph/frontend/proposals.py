@@ -1,0 +1,279 @@
+"""Class-agnostic object proposals in a PV frame (boxes in PV pixels, x right, y down).
+
+Sources (``frontend.proposals``):
+
+* ``geometry``: AHAT pixels whose wrapped range lies clearly in front of the scene mesh along the
+  same ray (compared modulo the alias distance, so a wrapped reading of the wall is explained),
+  grouped into segments (8-connected on the AHAT grid, split where sorted ranges jump by more than
+  ``cluster_gap_m``), lifted to world points and projected into the PV image with the per-frame
+  poses. A wrapped range leaves the true range ambiguous: the segment is projected at the range
+  just in front of the mesh and, when that differs, at the wrapped reading itself (an object held
+  near the eye); the parallax between the two sensors makes the boxes differ, the matcher decides.
+* ``image``: OpenCV graph segmentation of the downscaled frame, one box per segment.
+* an ONNX mask model by path: one box per predicted mask.
+
+:func:`nms` merges them per frame.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from egograph.core.errors import InputError
+from egograph.frontend.config import FrontendConfig
+from egograph.geometry.hl2ss import ahat_to_world_matrix, ahat_unit_rays, invert_rigid, pose_validity, pv_project
+
+SOURCE_RANK = {"geometry": 0, "mask": 1, "image": 2}
+
+
+@dataclass
+class Proposal:
+    """A box ``(x1, y1, x2, y2)`` in PV pixels from ``source``, with a confidence 0-1."""
+
+    box: tuple[float, float, float, float]
+    source: str
+    conf: float = 1.0
+
+    @property
+    def area(self) -> float:
+        x1, y1, x2, y2 = self.box
+        return max(0.0, x2 - x1) * max(0.0, y2 - y1)
+
+
+def iou(a, b) -> float:
+    ix = max(0.0, min(a[2], b[2]) - max(a[0], b[0]))
+    iy = max(0.0, min(a[3], b[3]) - max(a[1], b[1]))
+    inter = ix * iy
+    union = (a[2] - a[0]) * (a[3] - a[1]) + (b[2] - b[0]) * (b[3] - b[1]) - inter
+    return inter / union if union > 0 else 0.0
+
+
+def keep_plausible(props: list[Proposal], shape: tuple[int, int], cfg: FrontendConfig) -> list[Proposal]:
+    """Clip to the image (rows, cols) and drop boxes too small or too large (see the knobs)."""
+    rows, cols = shape
+    out = []
+    for p in props:
+        x1, y1, x2, y2 = p.box
+        x1, x2 = float(np.clip(x1, 0, cols)), float(np.clip(x2, 0, cols))
+        y1, y2 = float(np.clip(y1, 0, rows)), float(np.clip(y2, 0, rows))
+        if min(x2 - x1, y2 - y1) < cfg.min_box_px or (x2 - x1) * (y2 - y1) > cfg.max_box_share * rows * cols:
+            continue
+        out.append(Proposal((x1, y1, x2, y2), p.source, p.conf))
+    return out
+
+
+def nms(props: list[Proposal], iou_max: float, limit: int) -> list[Proposal]:
+    """Greedy non-maximum suppression: geometry first, then mask, then image proposals, larger
+    confidence then larger area first; a box overlapping a kept one by more than ``iou_max`` goes."""
+    order = sorted(props, key=lambda p: (SOURCE_RANK.get(p.source, 9), -p.conf, -p.area))
+    kept: list[Proposal] = []
+    for p in order:
+        if all(iou(p.box, k.box) <= iou_max for k in kept):
+            kept.append(p)
+            if len(kept) >= limit:
+                break
+    return kept
+
+
+# --------------------------------------------------------------------------- geometry
+
+
+class GeometryProposals:
+    """Proposals from AHAT depth the recording's mesh does not explain (see module doc)."""
+
+    def __init__(self, rec, cfg: FrontendConfig):
+        self.rec, self.cfg = rec, cfg
+        ahat = rec.ahat
+        self.alias = float(ahat.alias_m)
+        self.m_per_raw = float(rec.depth_factor) / float(ahat.scale)
+        k = cfg.depth_stride
+        self.dirs = ahat_unit_rays(ahat.uv2xy)[::k, ::k]
+        valid = getattr(ahat, "valid_mask", None)
+        self.ray_ok = np.ones(self.dirs.shape[:2], bool) if valid is None else np.asarray(valid, bool)[::k, ::k]
+        self.min_px = max(1, int(np.ceil(cfg.min_segment_px / k ** 2)))
+        self.scene = rec.mesh_scene()
+        if self.scene is None:
+            raise InputError(rec.seq_dir, "geometry proposals need the recording's mesh (mesh/*.ply); none found: "
+                                          "use --proposals image")
+
+    def unexplained(self, raw: np.ndarray, to_world: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """``(mask (H, W), wrapped range (H, W), mesh range (H, W))``, metres: valid pixels whose
+        reading lies at least ``unexplained_m`` in front of the mesh modulo the alias."""
+        import open3d as o3d
+
+        m = raw.astype(np.float64) * self.m_per_raw
+        ok = (raw > 0) & self.ray_ok
+        vs, us = np.nonzero(ok)
+        dirs_w = self.dirs[vs, us] @ to_world[:3, :3]
+        rays = np.concatenate([np.broadcast_to(to_world[3, :3], dirs_w.shape), dirs_w], axis=1).astype(np.float32)
+        mesh_r = np.full(raw.shape, np.inf)
+        mesh_r[vs, us] = self.scene.cast_rays(o3d.core.Tensor(rays))["t_hit"].numpy()
+        a = self.alias
+        with np.errstate(invalid="ignore"):  # inf mesh range (a miss) gives NaN, masked out below
+            d = np.mod(m - mesh_r + a / 2, a) - a / 2
+        mask = ok & np.isfinite(mesh_r) & (d <= -self.cfg.unexplained_m) & (mesh_r + d <= self.cfg.max_range_m)
+        return mask, m, mesh_r
+
+    def segments(self, mask: np.ndarray, m: np.ndarray) -> list[tuple[np.ndarray, np.ndarray]]:
+        """``[(rows, cols)]`` of AHAT pixel segments (see module doc)."""
+        import cv2
+
+        n, labels, stats, _ = cv2.connectedComponentsWithStats(mask.astype(np.uint8), connectivity=8)
+        flat = labels.ravel()
+        order = np.argsort(flat, kind="stable")
+        starts = np.searchsorted(flat[order], np.arange(n + 1))
+        out = []
+        for lab in range(1, n):
+            if stats[lab, cv2.CC_STAT_AREA] < self.min_px:
+                continue
+            idx = order[starts[lab]:starts[lab + 1]]
+            vs, us = np.divmod(idx, labels.shape[1])
+            r = m[vs, us]
+            srt = np.argsort(r)
+            cuts = np.nonzero(np.diff(r[srt]) > self.cfg.cluster_gap_m)[0] + 1
+            for part in np.split(srt, cuts):
+                if len(part) >= self.min_px:
+                    out.append((vs[part], us[part]))
+        return out
+
+    def __call__(self, i: int, raw: np.ndarray | None = None) -> list[Proposal]:
+        rec = self.rec
+        raw = rec.depth_raw(i) if raw is None else raw
+        if raw is not None:
+            raw = raw[::self.cfg.depth_stride, ::self.cfg.depth_stride]
+        pose, pv_pose = rec.depth_poses[i], rec.pv_poses[i]
+        if raw is None or not (rec.depth_valid[i] and rec.pv_valid[i] and pose_validity(pose)
+                               and pose_validity(pv_pose)):
+            return []
+        to_world = ahat_to_world_matrix(rec.ahat.extrinsics, pose)
+        to_pv = to_world @ invert_rigid(pv_pose)
+        mask, m, mesh_r = self.unexplained(raw, to_world)
+        a, props = self.alias, []
+        for vs, us in self.segments(mask, m):
+            fill = len(vs) / ((np.ptp(vs) + 1.0) * (np.ptp(us) + 1.0))
+            if fill < self.cfg.min_fill:
+                continue   # sparse speckle (dark or grazing surfaces), not a solid object
+            wrapped = m[vs, us]
+            with np.errstate(invalid="ignore"):
+                d = np.mod(wrapped - mesh_r[vs, us] + a / 2, a) - a / 2
+            near_mesh = np.median(mesh_r[vs, us] + d)
+            ranges = [near_mesh]
+            if self.cfg.near_eye_candidates and near_mesh - np.median(wrapped) > self.cfg.cluster_gap_m:
+                ranges.append(np.median(wrapped))    # held near the eye: the reading did not wrap
+            for r_med in ranges:
+                r = wrapped + (r_med - np.median(wrapped))   # keep the segment's range spread
+                cam = self.dirs[vs, us] * r[:, None]
+                lo3, hi3 = np.percentile(cam, 5, axis=0), np.percentile(cam, 95, axis=0)
+                if not self.cfg.min_object_m <= float(np.max(hi3 - lo3)) <= self.cfg.max_object_m:
+                    continue   # furniture the mesh lacks, or range speckle: not a small object
+                pv_cam = cam @ to_pv[:3, :3] + to_pv[3, :3]
+                uv, depth = pv_project(pv_cam, rec.pv.intrinsics)
+                uv = uv[depth > 0.05]
+                if len(uv) < self.min_px:
+                    continue
+                lo, hi = np.percentile(uv, 2, axis=0), np.percentile(uv, 98, axis=0)
+                pad = self.cfg.box_pad_px
+                props.append(Proposal((lo[0] - pad, lo[1] - pad, hi[0] + pad, hi[1] + pad), "geometry",
+                                      conf=float(min(1.0, len(vs) * self.cfg.depth_stride ** 2 / 50.0))))
+        return props
+
+
+# --------------------------------------------------------------------------- image
+
+
+class ImageProposals:
+    """Boxes of OpenCV graph-segmentation segments (``cv2.ximgproc``, the contrib package)."""
+
+    def __init__(self, cfg: FrontendConfig):
+        import cv2
+
+        if not hasattr(cv2, "ximgproc"):
+            raise InputError(Path(cv2.__file__), "image proposals need OpenCV's contrib modules: "
+                                                 "pip install opencv-contrib-python-headless")
+        self.cfg = cfg
+        self.seg = cv2.ximgproc.segmentation.createGraphSegmentation(cfg.seg_sigma, cfg.seg_k, cfg.seg_min_size)
+
+    def __call__(self, rgb: np.ndarray) -> list[Proposal]:
+        import cv2
+
+        s = self.cfg.image_scale
+        small = cv2.resize(rgb, None, fx=s, fy=s, interpolation=cv2.INTER_AREA)
+        labels = self.seg.processImage(cv2.cvtColor(small, cv2.COLOR_RGB2BGR))
+        n = int(labels.max()) + 1
+        out = []
+        for lab in range(n):
+            vs, us = np.nonzero(labels == lab)
+            if not len(vs):
+                continue
+            out.append(Proposal((us.min() / s, vs.min() / s, (us.max() + 1) / s, (vs.max() + 1) / s), "image", 0.5))
+        return out
+
+
+# --------------------------------------------------------------------------- ONNX mask model
+
+
+class MaskModelProposals:
+    """An ONNX mask model by path: input float32 (1, 3, H, W) RGB scaled 0-1 (H, W fixed by the
+    model, or the frame's size when symbolic); output (1, K, h, w) (or (K, h, w)) mask
+    probabilities; one box per mask with any pixel >= ``mask_threshold``, confidence = its mean
+    probability inside."""
+
+    def __init__(self, path: str | Path, cfg: FrontendConfig):
+        from egograph.frontend.encoder import _session
+
+        self.path, self.cfg = Path(path), cfg
+        if not self.path.is_file():
+            raise InputError(self.path, "mask model not found (frontend.proposals: 'geometry', 'image', "
+                                        "'geometry+image' or an ONNX file)")
+        self.session = _session(self.path, cfg.threads)
+        ins = self.session.get_inputs()
+        if len(ins) != 1 or len(ins[0].shape) != 4 or ins[0].shape[1] not in (3, "C"):
+            raise InputError(self.path, "a mask model takes one (1, 3, H, W) float input; this one takes "
+                                        + ", ".join(f"{i.name} {list(i.shape)}" for i in ins))
+        self.input = ins[0]
+
+    def __call__(self, rgb: np.ndarray) -> list[Proposal]:
+        import cv2
+
+        rows, cols = rgb.shape[:2]
+        h, w = self.input.shape[2:]
+        h = h if isinstance(h, int) else rows
+        w = w if isinstance(w, int) else cols
+        x = cv2.resize(rgb, (w, h), interpolation=cv2.INTER_AREA).astype(np.float32) / 255.0
+        masks = np.asarray(self.session.run(None, {self.input.name: x.transpose(2, 0, 1)[None]})[0])
+        if masks.ndim == 4:
+            masks = masks[0]
+        if masks.ndim != 3:
+            raise InputError(self.path, f"mask output has shape {list(masks.shape)}; expected (1, K, h, w)")
+        sy, sx = rows / masks.shape[1], cols / masks.shape[2]
+        out = []
+        for m in masks:
+            on = m >= self.cfg.mask_threshold
+            if not on.any():
+                continue
+            vs, us = np.nonzero(on)
+            out.append(Proposal((us.min() * sx, vs.min() * sy, (us.max() + 1) * sx, (vs.max() + 1) * sy), "mask",
+                                float(m[on].mean())))
+        return out
+
+
+def proposal_sources(rec, cfg: FrontendConfig, name: str | None = None) -> list:
+    """The callables ``(i, rgb) -> [Proposal]`` for ``name`` (default ``cfg.proposals``)."""
+    name = name or cfg.proposals
+    if name in ("geometry", "image", "geometry+image"):
+        out = []
+        if "geometry" in name:
+            geo = GeometryProposals(rec, cfg)
+            out.append(lambda i, rgb: geo(i))
+        if "image" in name:
+            img = ImageProposals(cfg)
+            out.append(lambda i, rgb: img(rgb))
+        return out
+    if name.endswith(".onnx") or Path(name).is_file():
+        mm = MaskModelProposals(name, cfg)
+        return [lambda i, rgb: mm(rgb)]
+    raise InputError(Path(name), "unknown proposal source: 'geometry', 'image', 'geometry+image' or an ONNX mask "
+                                 "model file")

@@ -1,0 +1,303 @@
+"""Step ``detect``: PV frames + an enrollment (SVOE box or MVPE photos) -> per-frame detections.
+
+For every PV frame: class-agnostic proposals (:mod:`egograph.frontend.proposals`), each cropped and
+embedded by an ONNX image encoder (:mod:`egograph.frontend.encoder`), compared by cosine similarity
+with every enrolled instance; per instance the most similar proposal at or above
+``frontend.similarity_threshold`` is kept (top-1 per instance per frame, as the reference
+pipeline). The output folder holds one ``<ts>.txt`` per PV frame in the reference association
+format ``instance x1 y1 x2 y2 det_conf similarity`` (PV pixels; empty without detections), which
+``egograph lift/track --detections DIR`` read, plus ``config.yaml`` and ``egograph.json``; it is
+committed by one rename.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import time
+import warnings
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from egograph.core.config import to_dict
+from egograph.core.errors import EgographError, InputError
+from egograph.core.values import format_number
+from egograph.io.recording import Recording, report_problem
+from egograph.steps import outputs
+from egograph.steps.recording import labels as read_labels
+from egograph.steps.recording import require_annotations
+
+ENROLLMENTS = ("svoe", "mvpe")
+STAGES = ("read", "proposals", "crops", "encoder", "matching")
+
+
+@dataclass
+class DetectReport:
+    """What ``detect`` did: frames, detections per instance (id -> count), what was skipped and
+    why, proposals encoded, and the seconds spent per stage."""
+
+    frames: int = 0
+    skipped_frames: list[str] = field(default_factory=list)       # PV images missing or unreadable
+    enrolled: dict[int, int] = field(default_factory=dict)        # instance -> views embedded
+    not_enrolled: dict[int, tuple[str, str]] = field(default_factory=dict)   # instance -> (path, why)
+    detections: dict[int, int] = field(default_factory=dict)
+    proposals: int = 0
+    seconds: dict[str, float] = field(default_factory=lambda: dict.fromkeys(STAGES, 0.0))
+    names: list[str] = field(default_factory=list)
+
+    def name(self, inst: int) -> str:
+        return self.names[inst] if inst < len(self.names) else str(inst)
+
+    def summary(self) -> str:
+        total = sum(self.seconds.values())
+        lines = [f"{self.frames} PV frames, {self.proposals} proposals encoded ({self.proposals / max(self.frames, 1):.1f}"
+                 f"/frame), {self.frames / max(total, 1e-9):.2f} frames/s; ms/frame: "
+                 + ", ".join(f"{k} {1000 * v / max(self.frames, 1):.0f}" for k, v in self.seconds.items())]
+        for inst in sorted(set(self.enrolled) | set(self.not_enrolled)):
+            if inst in self.enrolled:
+                n = self.detections.get(inst, 0)
+                lines.append(f"  {inst} {self.name(inst)}: {n} detections in {self.frames} frames "
+                             f"({100 * n / max(self.frames, 1):.0f} %), {self.enrolled[inst]} enrollment views")
+            else:
+                lines.append(f"  {inst} {self.name(inst)}: not enrolled ({': '.join(self.not_enrolled[inst])})")
+        if self.skipped_frames:
+            lines.append(f"  {len(self.skipped_frames)} PV frames skipped (no image or unreadable), e.g. "
+                         + ", ".join(self.skipped_frames[:3]))
+        return "\n".join(lines)
+
+
+# --------------------------------------------------------------------------- enrollment
+
+
+def enroll_svoe(rec: Recording, encoder, cfg, report: DetectReport, n_labels: int = 0) -> dict[int, np.ndarray]:
+    """Views of each instance's ``svoe.txt`` box (see :func:`egograph.frontend.matching.svoe_views`)."""
+    from egograph.frontend.matching import svoe_views
+    from egograph.io.annotations import load_annotations
+    from egograph.io.recording import locate_svoe
+
+    look = locate_svoe(rec.seq_dir, rec.annotation_dir, rec.svoe_dir or None)
+    if look.found is None:
+        raise InputError(rec.seq_dir, "no SVOE enrollment (svoe.txt) found; tried " + ", ".join(look.tried[:6])
+                         + "; set io.svoe_dir")
+    path = Path(look.found)
+    ann = load_annotations(rec.annotation_dir, svoe_path=path)
+    views = {}
+    for e in ann.svoe:
+        if e.instance in views:
+            continue   # one enrollment per instance: the first line
+        try:
+            i = rec.index_of(e.ts)
+        except (KeyError, ValueError, EgographError):
+            report.not_enrolled[e.instance] = (str(path), f"frame {e.ts} is no PV frame")
+            continue
+        rgb = rec.rgb(i)
+        if rgb is None:
+            report.not_enrolled[e.instance] = (str(rec.pv_path(i)), "PV image of the SVOE box missing or unreadable")
+            continue
+        rows, cols = rgb.shape[:2]
+        b = e.box
+        x1, y1, x2, y2 = max(b.x_min, 0), max(b.y_min, 0), min(b.x_max, cols), min(b.y_max, rows)
+        if x2 - x1 < 2 or y2 - y1 < 2:
+            report.not_enrolled[e.instance] = (str(path), f"box {b.x_min:g} {b.y_min:g} {b.x_max:g} {b.y_max:g} "
+                                                           f"outside its {cols}x{rows} frame {e.ts}")
+            continue
+        crops = svoe_views(rgb, (x1, y1, x2, y2), cfg)
+        views[e.instance] = encoder.embed(crops)
+    for inst in range(n_labels):
+        if inst not in views and inst not in report.not_enrolled:
+            report.not_enrolled[inst] = (str(path), "no box for this instance")
+    return views
+
+
+def enroll_mvpe(rec: Recording, encoder, cfg, names: list[str], report: DetectReport) -> dict[int, np.ndarray]:
+    """Embeddings of each instance's photos (``<mvpe>/<instance_name>/*.jpg``, at most ``mvpe_max_photos``)."""
+    import cv2
+
+    from egograph.frontend.matching import autocrop
+    from egograph.io.annotations import read_mvpe_photos
+    from egograph.io.recording import locate_mvpe
+
+    look = locate_mvpe(rec.seq_dir, names, rec.mvpe_dir or None)
+    if look.found is None:
+        raise InputError(rec.seq_dir, "no MVPE photos found; tried " + ", ".join(look.tried[:6]) + "; set io.mvpe_dir")
+    photos = read_mvpe_photos(look.found)
+    views = {}
+    for inst, name in enumerate(names):
+        files = photos.get(name, [])[:cfg.mvpe_max_photos]
+        crops, bad = [], []
+        for f in files:
+            img = cv2.imread(str(f), cv2.IMREAD_COLOR)
+            if img is None:
+                bad.append(f.name)
+            else:
+                rgb = cv2.cvtColor(img, cv2.COLOR_BGR2RGB)
+                crops.append(autocrop(rgb, cfg.crop_margin) if cfg.mvpe_autocrop else rgb)
+        if bad:
+            warnings.warn(f"{Path(look.found) / name}: {len(bad)} unreadable photo(s) skipped, e.g. {bad[0]}",
+                          stacklevel=2)
+        if not crops:
+            why = "no readable photos" if files else "no photos (*.jpg, *.jpeg) in this folder, or no such folder"
+            report.not_enrolled[inst] = (str(Path(look.found) / name), why)
+            continue
+        views[inst] = encoder.embed(crops)
+    return views
+
+
+# --------------------------------------------------------------------------- frames
+
+
+def project_guides(rec: Recording, guide_world: dict[int, np.ndarray] | None, i: int) -> dict[int, np.ndarray]:
+    """PV pixel positions in frame ``i`` of the given 3D estimates (instance -> (N, 3) world, metres,
+    NaN where none); only estimates in front of the camera."""
+    from egograph.geometry.hl2ss import invert_rigid, pose_validity, pv_project, transform_points
+
+    out = {}
+    if not guide_world or not rec.pv_valid[i] or not pose_validity(rec.pv_poses[i]):
+        return out
+    inv = invert_rigid(rec.pv_poses[i])
+    for inst, xyz in guide_world.items():
+        p = np.asarray(xyz[i], float)
+        if not np.isfinite(p).all():
+            continue
+        uv, depth = pv_project(transform_points(p[None], inv), rec.pv.intrinsics)
+        if depth[0] > 0:
+            out[inst] = uv[0]
+    return out
+
+
+def frame_text(rows: list[tuple[int, tuple, float, float]]) -> str:
+    """``instance x1 y1 x2 y2 det_conf similarity`` lines (boxes to 0.1 px, scores to 1e-4)."""
+    return "".join(" ".join([str(inst), *(format_number(round(v, 1)) for v in box),
+                             format_number(round(min(max(conf, 0.0), 1.0), 4)),
+                             format_number(round(min(max(sim, -1.0), 1.0), 4))]) + "\n"
+                   for inst, box, conf, sim in rows)
+
+
+class FrameDetector:
+    """Proposals -> crops -> embeddings -> top-1 per instance, for one PV frame at a time."""
+
+    def __init__(self, rec: Recording, cfg, encoder, enrollment, sources, report: DetectReport):
+        self.rec, self.cfg, self.encoder, self.enrollment, self.sources, self.report = (
+            rec, cfg, encoder, enrollment, sources, report)
+
+    def __call__(self, i: int, rgb: np.ndarray, guides: dict | None = None) -> list[tuple[int, tuple, float, float]]:
+        from egograph.frontend.matching import crop, pick
+        from egograph.frontend.proposals import keep_plausible, nms
+
+        cfg, sec = self.cfg, self.report.seconds
+        t0 = time.perf_counter()
+        props = []
+        for src in self.sources:
+            props += keep_plausible(src(i, rgb), rgb.shape[:2], cfg)
+        props = nms(props, cfg.nms_iou, cfg.max_proposals)
+        t1 = time.perf_counter()
+        crops, kept = [], []
+        for p in props:
+            c = crop(rgb, p.box, cfg.crop_margin)
+            if c is not None:
+                crops.append(c)
+                kept.append(p)
+        t2 = time.perf_counter()
+        emb = self.encoder.embed(crops)
+        t3 = time.perf_counter()
+        rows = []
+        if kept:
+            boxes = [p.box for p in kept]
+            for inst, sims in self.enrollment.similarity(emb).items():
+                g = (guides or {}).get(inst)
+                k = pick(sims, boxes, cfg.similarity_threshold, g, cfg.guidance_radius_px)
+                if k is not None:
+                    rows.append((inst, kept[k].box, kept[k].conf, float(sims[k])))
+        t4 = time.perf_counter()
+        sec["proposals"] += t1 - t0
+        sec["crops"] += t2 - t1
+        sec["encoder"] += t3 - t2
+        sec["matching"] += t4 - t3
+        self.report.proposals += len(kept)
+        return sorted(rows)
+
+
+def encoder_id(cfg, encoder_path: str | Path | None) -> dict:
+    """What the detections depend on of the encoder: its file's size and a digest of its first MB."""
+    path = encoder_path or cfg.frontend.encoder
+    if not path:
+        from egograph.frontend import effnet
+
+        return {"embedded": "efficientnet_lite0", "converter": effnet.CONVERTER_VERSION}
+    p = Path(path)
+    try:
+        with open(p, "rb") as f:
+            head = hashlib.sha256(f.read(1 << 20)).hexdigest()[:16]
+        return {"path": str(p), "size": p.stat().st_size, "head": head}
+    except OSError:
+        return {"path": str(p)}
+
+
+def detect(rec: Recording, enroll: str, cfg, out: str | Path, *, encoder: str | Path | None = None,
+           proposals: str | None = None, guide_world: dict[int, np.ndarray] | None = None,
+           overwrite: bool = False, progress: bool = True) -> DetectReport | None:
+    """Detect the instances enrolled by ``enroll`` (``svoe`` or ``mvpe``) in every PV frame of
+    ``rec``, writing the folder ``out`` (see module doc). ``encoder``/``proposals`` override
+    ``cfg.frontend.encoder``/``.proposals``; ``guide_world``: optional 3D estimates per instance
+    and frame (3D guidance, ``frontend.guidance_radius_px``). Returns the report, or None when
+    ``out`` already holds this exact run. Nothing enrolled, no PV image or a bad encoder raise
+    before anything is written."""
+    from tqdm import tqdm
+
+    from egograph.frontend.encoder import load_encoder
+    from egograph.frontend.matching import Enrollment
+    from egograph.frontend.proposals import proposal_sources
+
+    if enroll not in ENROLLMENTS:
+        raise EgographError(f"--enroll {enroll}: one of {', '.join(ENROLLMENTS)}")
+    fcfg = cfg.frontend
+    source_name = proposals or fcfg.proposals
+    record = outputs.run_record("detect", cfg, {"recording": outputs.recording_digest(rec), "enroll": enroll,
+                                                "encoder": encoder_id(cfg, encoder), "proposals": source_name,
+                                                "guided": guide_world is not None},
+                                depends_on={"frontend": to_dict(fcfg), "io": to_dict(cfg.io)})
+    if outputs.up_to_date(Path(out), record, overwrite):
+        return None
+    require_annotations(rec, "instance labels for detection")
+    names = read_labels(rec) or []
+    report = DetectReport(names=names)
+    enc = load_encoder(fcfg, encoder)
+    views = enroll_svoe(rec, enc, fcfg, report, len(names)) if enroll == "svoe" else enroll_mvpe(rec, enc, fcfg, names, report)
+    for inst, (where, why) in report.not_enrolled.items():
+        report_problem(rec.strict, where, f"instance {inst} ({report.name(inst)}) not enrolled: {why}")
+    if not views:
+        raise EgographError(f"{rec.seq_dir}: no instance could be enrolled ({enroll}); nothing to detect")
+    report.enrolled = {k: len(v) for k, v in views.items()}
+    enrollment = Enrollment(views, fcfg.mvpe_pooling)
+    sources = proposal_sources(rec, fcfg, source_name)
+    run = FrameDetector(rec, fcfg, enc, enrollment, sources, report)
+    files: dict[str, str] = {}
+    for i in tqdm(range(len(rec)), desc=f"detect ({enroll})", unit="frame", disable=not progress, mininterval=1.0):
+        ts = int(rec.timestamps[i])
+        t0 = time.perf_counter()
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore")   # an unreadable image is counted and named in one warning below
+            rgb = rec.rgb(i)
+        report.seconds["read"] += time.perf_counter() - t0
+        if rgb is None:
+            report.skipped_frames.append(str(rec.pv_path(i)))
+            files[f"{ts}.txt"] = ""
+            continue
+        rows = run(i, rgb, project_guides(rec, guide_world, i))
+        report.frames += 1
+        for inst, *_ in rows:
+            report.detections[inst] = report.detections.get(inst, 0) + 1
+        files[f"{ts}.txt"] = frame_text(rows)
+    if report.frames == 0:
+        raise InputError(rec.seq_dir / "pv", f"none of the {len(rec)} PV images could be read (e.g. "
+                                             f"{report.skipped_frames[0] if report.skipped_frames else '-'})")
+    if report.skipped_frames:
+        report_problem(rec.strict, report.skipped_frames[0],
+                       f"{len(report.skipped_frames)} of {len(rec)} PV images missing or unreadable (this one "
+                       "first); their frames get empty detection files")
+    files.update(outputs.run_files(record, cfg))
+    from egograph.io.textio import write_text_dir
+
+    write_text_dir(out, files)
+    return report

@@ -1,0 +1,151 @@
+"""``egograph detect`` on a synthetic recording with PV RGB: it finds the instances where they are
+visible (measured against the generator's true boxes), its output is what ``egograph track
+--detections DIR`` reads, and bad input is named and skipped."""
+
+from __future__ import annotations
+
+import shutil
+import warnings
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+pytest.importorskip("onnxruntime")
+pytest.importorskip("open3d")
+
+from egograph.core.config import load_config  # noqa: E402
+from egograph.core.errors import InputError  # noqa: E402
+from egograph.core.resources import default_config  # noqa: E402
+from egograph.frontend.proposals import iou  # noqa: E402
+from egograph.io.detections import read_detection_dir  # noqa: E402
+from egograph.steps.detect import detect  # noqa: E402
+from egograph.steps.recording import open_recording  # noqa: E402
+from egograph.steps.settings import EgographConfig  # noqa: E402
+from tests.test_frontend import tiny_encoder  # noqa: E402
+
+pytestmark = pytest.mark.slow
+
+VISIBLE = 0.5        # an instance counts as visible in a frame from this visible share on
+IOU_TRUE = 0.3       # a detection is true at this IoU with the true box (synthetic boxes are tight)
+SHARE_MIN = 0.15     # measured 0.33 (10 of 30 visible instance-frames; 84 false detections) on this fixture
+
+
+def cfg_for(**frontend):
+    cfg = load_config(EgographConfig, default_config())
+    for k, v in frontend.items():
+        setattr(cfg.frontend, k, v)
+    return cfg
+
+
+def recall_and_false(rec, det_dir) -> tuple[float, int, int]:
+    """(share of visible instance-frames with a true detection, true, false detections)."""
+    with np.load(rec.synth_gt_dir / "instances.npz") as gt:
+        boxes, visible = gt["boxes"], gt["visible"]
+    dets = read_detection_dir(det_dir, rec.timestamps)
+    n_vis = int((visible >= VISIBLE).sum())
+    true = false = 0
+    for i, ts in enumerate(rec.timestamps):
+        for d in dets[int(ts)]:
+            b = (d.box.x_min, d.box.y_min, d.box.x_max, d.box.y_max)
+            ok = visible[i, d.instance] >= VISIBLE and iou(b, boxes[i, d.instance]) >= IOU_TRUE
+            true += ok
+            false += not ok
+    return true / max(n_vis, 1), true, false
+
+
+@pytest.fixture(scope="module")
+def detected(tiny_rgb_rec, tmp_path_factory, monkeypatch_module):
+    monkeypatch_module.setenv("EGOGRAPH_CACHE", str(tmp_path_factory.mktemp("cache")))
+    cfg = cfg_for()
+    rec = open_recording(tiny_rgb_rec, cfg)
+    out = tmp_path_factory.mktemp("det") / "mvpe"
+    report = detect(rec, "mvpe", cfg, out, progress=False)
+    return rec, cfg, out, report
+
+
+@pytest.fixture(scope="module")
+def monkeypatch_module():
+    mp = pytest.MonkeyPatch()
+    yield mp
+    mp.undo()
+
+
+def test_detect_finds_visible_instances(detected):
+    rec, cfg, out, report = detected
+    share, true, false = recall_and_false(rec, out)
+    print(f"true {true} false {false} share of visible {share:.2f}\n{report.summary()}")
+    assert report.frames == len(rec) and not report.skipped_frames
+    assert set(report.enrolled) == set(range(5))
+    assert share >= SHARE_MIN
+
+
+
+def test_detect_output_reads_as_detections_for_track(detected):
+    from egograph.steps.lift import load_detections
+
+    rec, cfg, out, _ = detected
+    files = sorted(p.name for p in Path(out).glob("*.txt"))
+    assert len(files) == len(rec)                                     # one file per PV frame
+    dets = load_detections(rec, str(out), cfg)                        # what `track --detections DIR` reads
+    assert sum(len(v) for v in dets.values()) == sum(detected[3].detections.values())
+    rows = [line.split() for f in files for line in (Path(out) / f).read_text().splitlines()]
+    assert rows and all(len(r) == 7 for r in rows)                    # instance x1 y1 x2 y2 det_conf sim
+    assert all(float(r[6]) >= cfg.frontend.similarity_threshold for r in rows)
+    assert detect(rec, "mvpe", cfg, out, progress=False) is None      # same run: skipped
+
+
+def test_detect_bad_input_named_and_skipped(tiny_rgb_rec, tmp_path):
+    root = tmp_path / "rec"
+    shutil.copytree(tiny_rgb_rec, root)
+    cfg = cfg_for(input_size=32, proposals="image")
+    rec = open_recording(root, cfg)
+    pv = sorted((rec.seq_dir / "pv").iterdir())
+    pv[3].unlink()
+    pv[5].write_bytes(b"not a png")
+    names = (rec.annotation_dir / "labels.csv").read_text().split()
+    shutil.rmtree(root / "mvpe" / rec.name / names[1])
+    svoe = rec.annotation_dir / "svoe.txt"
+    first = svoe.read_text().splitlines()[0].split()
+    outside = (int(first[0]) + 1) % len(names)           # another instance, its box beyond the 1280x720 frame
+    svoe.write_text(svoe.read_text() + " ".join([str(outside), first[1], "5000", "5000", "5100", "5100"]) + "\n")
+    enc = tiny_encoder(tmp_path / "enc.onnx", side=32)
+    rec = open_recording(root, cfg)
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        rep = detect(rec, "mvpe", cfg, tmp_path / "mvpe", encoder=enc, progress=False)
+    text = "\n".join(str(w.message) for w in caught)
+    assert 1 in rep.not_enrolled and names[1] in text and "no photos" in text
+    assert len(rep.skipped_frames) == 2 and pv[3].name in rep.skipped_frames[0] and "2 of" in text
+    assert len(list((tmp_path / "mvpe").glob("*.txt"))) == len(rec)  # every frame has its file
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        rep = detect(rec, "svoe", cfg, tmp_path / "svoe", encoder=enc, progress=False)
+    assert int(first[0]) in rep.enrolled
+    assert outside in rep.not_enrolled and "outside" in rep.not_enrolled[outside][1]
+    assert any("svoe.txt" in str(w.message) and "outside" in str(w.message) for w in caught)
+    bad = tmp_path / "bad.onnx"
+    bad.write_bytes(b"garbage")
+    with pytest.raises(InputError, match="bad.onnx"):
+        detect(rec, "svoe", cfg, tmp_path / "never", encoder=bad, progress=False)
+    with pytest.raises(InputError, match=r"enc\.onnx.*shape"):
+        detect(rec, "svoe", cfg_for(input_size=64), tmp_path / "never", encoder=enc, progress=False)
+    assert not (tmp_path / "never").exists()
+
+
+def test_guidance_projects_true_positions_into_true_boxes(detected):
+    """3D guidance: the projection of an instance's true 3D centre lies in its true PV box."""
+    from egograph.steps.detect import project_guides
+
+    rec = detected[0]
+    with np.load(rec.synth_gt_dir / "instances.npz") as gt:
+        pos, boxes, visible = gt["positions"], gt["boxes"], gt["visible"]
+    guide = {k: pos[:, k] for k in range(pos.shape[1])}
+    inside = total = 0
+    for i in range(len(rec)):
+        uv = project_guides(rec, guide, i)
+        for k in np.nonzero(visible[i] >= 0.9)[0]:
+            x1, y1, x2, y2 = boxes[i, k]
+            total += 1
+            inside += k in uv and x1 - 5 <= uv[k][0] <= x2 + 5 and y1 - 5 <= uv[k][1] <= y2 + 5
+    assert total > 0 and inside == total

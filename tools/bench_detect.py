@@ -1,0 +1,190 @@
+#!/usr/bin/env python
+"""Benchmark ``egograph detect``: PV frames/s end to end and ms per stage, and the cost per crop of
+a ViT-S/14-sized ONNX encoder.
+
+    .venv/bin/python tools/bench_detect.py                         # 60-frame synth/tiny recording, seed 11
+    .venv/bin/python tools/bench_detect.py --frames 120 --runs mvpe:mean,mvpe:max,svoe --proposals geometry+image
+    .venv/bin/python tools/bench_detect.py --rec REC               # an existing recording (with pv/)
+
+Part 1 generates a synthetic recording with PV RGB (``synth/tiny``, kept in ``--workdir``), runs
+``detect`` with the embedded EfficientNet-lite0 (converted into a fresh cache, the conversion timed
+apart) and prints frames/s and ms/frame per stage (read = PNG decode, proposals, crops, encoder,
+matching), proposals per frame, and -- on a synthetic recording -- the share of visible
+instance-frames (visible share >= 0.5) with a true detection (IoU >= 0.3 with the true box) and the
+false detections.
+
+Part 2 builds a ViT-S/14-sized encoder with onnx.helper and random weights (patch 14, 224 px ->
+256 patches + a class token, 12 blocks, width 384, 6 heads, MLP 1536; ~22 M parameters, DINOv2
+ViT-S/14's shape; nothing is downloaded) and times it per crop at batch 1 and 8 on onnxruntime.
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+import numpy as np
+
+REPO = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(REPO))
+
+
+def vit_s14(path: Path, seed: int = 0, depth: int = 12, width: int = 384, heads: int = 6, size: int = 224) -> Path:
+    """A random-weight ViT-S/14-shaped ONNX encoder: input ``image`` (N, 3, size, size), output
+    ``embedding`` (N, width), the class token after the last block's layer norm."""
+    import onnx
+    from onnx import TensorProto, helper, numpy_helper
+
+    rng = np.random.default_rng(seed)
+    inits, nodes = [], []
+    n_tok = (size // 14) ** 2 + 1
+
+    def const(name, arr):
+        inits.append(numpy_helper.from_array(np.asarray(arr, np.float32 if np.asarray(arr).dtype.kind == "f"
+                                                        else np.int64), name))
+        return name
+
+    def rand(name, *shape):
+        return const(name, rng.normal(0, 0.02, shape).astype(np.float32))
+
+    def node(op, ins, **kw):
+        out = f"t{len(nodes)}"
+        nodes.append(helper.make_node(op, ins, [out], **kw))
+        return out
+
+    def ln(x, p):
+        return node("LayerNormalization", [x, const(p + "g", np.ones(width)), const(p + "b", np.zeros(width))],
+                    axis=-1, epsilon=1e-6)
+
+    x = node("Conv", ["image", rand("patch_w", width, 3, 14, 14), rand("patch_b", width)],
+             kernel_shape=[14, 14], strides=[14, 14])
+    x = node("Reshape", [x, const("s1", [0, width, -1])])
+    x = node("Transpose", [x], perm=[0, 2, 1])                               # (N, 256, D)
+    shape = node("Shape", ["image"], start=0, end=1)
+    cls = node("Expand", [rand("cls", 1, 1, width), node("Concat", [shape, const("one_d", [1, width])], axis=0)])
+    x = node("Add", [node("Concat", [cls, x], axis=1), rand("pos", 1, n_tok, width)])
+    hd = width // heads
+    for b in range(depth):
+        p = f"b{b}_"
+        h = ln(x, p + "ln1")
+        qkv = node("Add", [node("MatMul", [h, rand(p + "qkv", width, 3 * width)]), rand(p + "qkvb", 3 * width)])
+        qkv = node("Reshape", [qkv, const(p + "s", [0, 0, 3, heads, hd])])
+        qkv = node("Transpose", [qkv], perm=[2, 0, 3, 1, 4])                 # (3, N, H, T, hd)
+        q, k, v = (node("Gather", [qkv, const(f"{p}i{j}", j)], axis=0) for j in range(3))
+        att = node("Softmax", [node("Mul", [node("MatMul", [q, node("Transpose", [k], perm=[0, 1, 3, 2])]),
+                                            const(p + "sc", hd ** -0.5)])], axis=-1)
+        o = node("Reshape", [node("Transpose", [node("MatMul", [att, v])], perm=[0, 2, 1, 3]),
+                             const(p + "s2", [0, 0, width])])
+        x = node("Add", [x, node("Add", [node("MatMul", [o, rand(p + "proj", width, width)]), rand(p + "pb", width)])])
+        h = ln(x, p + "ln2")
+        h = node("Add", [node("MatMul", [h, rand(p + "fc1", width, 4 * width)]), rand(p + "f1b", 4 * width)])
+        h = node("Mul", [h, node("Sigmoid", [node("Mul", [h, const(p + "g", 1.702)])])])   # GELU (sigmoid form)
+        x = node("Add", [x, node("Add", [node("MatMul", [h, rand(p + "fc2", 4 * width, width)]), rand(p + "f2b", width)])])
+    x = ln(x, "final")
+    cls_out = node("Gather", [x, const("zero", 0)], axis=1)
+    nodes.append(helper.make_node("Identity", [cls_out], ["embedding"]))
+    graph = helper.make_graph(nodes, "vit_s14_random",
+                              [helper.make_tensor_value_info("image", TensorProto.FLOAT, ["N", 3, size, size])],
+                              [helper.make_tensor_value_info("embedding", TensorProto.FLOAT, ["N", width])], inits)
+    model = helper.make_model(graph, opset_imports=[helper.make_opsetid("", 17)])
+    model.ir_version = 8
+    onnx.checker.check_model(model)
+    onnx.save(model, path)
+    return path
+
+
+def truth_score(rec, det_dir) -> str:
+    from egograph.frontend.proposals import iou
+    from egograph.io.detections import read_detection_dir
+
+    if rec.synth_gt_dir is None:
+        return "no synth_gt: no truth"
+    with np.load(rec.synth_gt_dir / "instances.npz") as gt:
+        boxes, visible = gt["boxes"], gt["visible"]
+    dets = read_detection_dir(det_dir, rec.timestamps)
+    n_vis = int((visible >= 0.5).sum())
+    true = false = 0
+    for i, ts in enumerate(rec.timestamps):
+        for d in dets[int(ts)]:
+            ok = visible[i, d.instance] >= 0.5 and iou((d.box.x_min, d.box.y_min, d.box.x_max, d.box.y_max),
+                                                       boxes[i, d.instance]) >= 0.3
+            true += ok
+            false += not ok
+    return f"visible instance-frames {n_vis}, true detections {true} ({true / max(n_vis, 1):.2f}), false {false}"
+
+
+def main(argv=None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--rec", type=Path, help="an existing recording with pv/ (default: generate one)")
+    ap.add_argument("--frames", type=int, default=60)
+    ap.add_argument("--seed", type=int, default=11)
+    ap.add_argument("--runs", default="mvpe:mean", help="comma-separated enrollment[:mvpe pooling] runs, e.g. "
+                                                        "mvpe:mean,mvpe:max,svoe")
+    ap.add_argument("--proposals", default=None, help="default frontend.proposals")
+    ap.add_argument("--workdir", type=Path, default=Path(tempfile.gettempdir()) / "egograph_bench_detect")
+    ap.add_argument("--skip-vit", action="store_true")
+    args = ap.parse_args(argv)
+
+    from egograph.core.config import load_config
+    from egograph.core.resources import default_config
+    from egograph.steps.detect import detect
+    from egograph.steps.recording import open_recording
+    from egograph.steps.settings import EgographConfig
+
+    args.workdir.mkdir(parents=True, exist_ok=True)
+    rec_root = args.rec
+    if rec_root is None:
+        rec_root = args.workdir / f"tiny_{args.frames}_{args.seed}"
+        if not (rec_root / "recording.json").is_file():
+            from egograph.core.resources import synth_config
+            from egograph.synth.config import SynthConfig
+            from egograph.synth.generate import generate
+
+            generate(rec_root, load_config(SynthConfig, synth_config("tiny"), [f"frames={args.frames}"]),
+                     seed=args.seed, progress=False)
+    cfg = load_config(EgographConfig, default_config())
+    rec = open_recording(rec_root, cfg)
+    cache = Path(tempfile.mkdtemp(prefix="cache", dir=args.workdir))
+    os.environ["EGOGRAPH_CACHE"] = str(cache)
+    from egograph.frontend import effnet
+
+    t = time.perf_counter()
+    effnet.embedded_model_path()
+    print(f"EfficientNet-lite0 conversion (first use): {time.perf_counter() - t:.2f} s")
+    for run in args.runs.split(","):
+        enroll, _, pooling = run.partition(":")
+        cfg.frontend.mvpe_pooling = pooling or "mean"
+        out = Path(tempfile.mkdtemp(prefix="det", dir=args.workdir)) / "out"
+        t = time.perf_counter()
+        report = detect(rec, enroll, cfg, out, proposals=args.proposals, overwrite=True, progress=False)
+        wall = time.perf_counter() - t
+        print(f"\ndetect --enroll {run} --proposals {args.proposals or cfg.frontend.proposals}: {len(rec)} frames in "
+              f"{wall:.1f} s = {len(rec) / wall:.2f} frames/s end to end (enrollment and model loading included)")
+        print(report.summary())
+        print(truth_score(rec, out))
+
+    if not args.skip_vit:
+        from egograph.frontend.config import FrontendConfig
+        from egograph.frontend.encoder import OnnxEncoder
+
+        path = vit_s14(args.workdir / "vit_s14_random.onnx")
+        enc = OnnxEncoder(path, FrontendConfig(batch=8))
+        rng = np.random.default_rng(0)
+        crops = [rng.integers(0, 255, (120, 90, 3), dtype=np.uint8) for _ in range(16)]
+        enc.embed(crops[:8])
+        for b in (1, 8):
+            enc.batch = b
+            t = time.perf_counter()
+            enc.embed(crops)
+            dt = time.perf_counter() - t
+            print(f"ViT-S/14-sized random ONNX encoder ({path.stat().st_size / 1e6:.0f} MB), batch {b}: "
+                  f"{1000 * dt / len(crops):.0f} ms per crop")
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
