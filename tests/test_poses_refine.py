@@ -211,7 +211,7 @@ def test_apply_poses_rejects_other_timestamps(jump_rec, tmp_path):
 
 
 @pytest.mark.slow
-def test_colmap_relative_factors_matchtrue_poses(tiny_rgb_rec):
+def test_colmap_relative_factors_matchtrue_poses(tiny_rgb_rec, tmp_path):
     """SIFT + matching + triangulation at the reported poses + pose-prior BA: the keyframe-to-keyframe
     motions it measures agree with the truth to millimetres."""
     from egograph.poses.colmap import colmap_constraints
@@ -222,6 +222,21 @@ def test_colmap_relative_factors_matchtrue_poses(tiny_rgb_rec):
     cfg = load_config(RefineConfig, None, ["colmap_stride=3", "colmap_overlap=3"])
     c, stats = colmap_constraints(rec, cfg, pv_columns(rec))
     assert stats["keyframes"] == 10 and stats["points"] > 200 and stats["reproj_after_px"] < 1.0
+    # the bundle-adjusted model is kept (refine writes it to OUT/colmap/): COLMAP's own reader opens it
+    import pycolmap
+
+    from egograph.poses.colmap import MODEL_KEY
+
+    files = stats[MODEL_KEY]
+    assert {"cameras.txt", "images.txt", "points3D.txt", "keyframes.txt"} <= set(files)
+    model_dir = tmp_path / "model"
+    model_dir.mkdir()
+    for name, data in files.items():
+        (model_dir / name).write_bytes(data)
+    model = pycolmap.Reconstruction(str(model_dir))
+    assert model.num_reg_images() == 10 and model.num_points3D() == stats["points"]
+    kf = [r.split() for r in files["keyframes.txt"].decode().splitlines() if not r.startswith("#")]
+    assert [int(r[2]) for r in kf] == [int(rec.timestamps[int(r[1])]) for r in kf]
     assert len(c) >= 10
     g = np.swapaxes(gt, 1, 2)
     true_rel = invert_columns(g[c.i]) @ g[c.j]

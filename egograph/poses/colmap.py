@@ -143,6 +143,7 @@ def _colmap_constraints(rec, cfg, pv_estimate, progress, stats):
         recon.update_point_3d_errors()
         stats["reproj_after_px"] = float(recon.compute_mean_reprojection_error())
         stats["seconds_ba"] = time.perf_counter() - t
+        stats[MODEL_KEY] = model_files(recon, tmp / "model", frames, names, rec.timestamps)
 
         by_name = {img.name: img for img in recon.images.values()}
         poses, point_sets = {}, {}
@@ -164,6 +165,24 @@ def _colmap_constraints(rec, cfg, pv_estimate, progress, stats):
     stats["factors"] = n
     return Constraints("colmap", "relative", np.array(out_i, int), np.array(out_j, int), np.array(out_T).reshape(n, 4, 4),
                        sigmas(cfg.colmap_sigma_rot, cfg.colmap_sigma_trans, n), cfg.colmap_kernel, {"stats": stats}), stats
+
+
+MODEL_KEY = "_model_files"
+"""Key of the stats dict holding the bundle-adjusted model's files (name -> bytes); the refine
+output writes them to ``OUT/colmap/`` and keeps them out of ``report.json``."""
+
+
+def model_files(recon, folder: Path, frames, names, timestamps) -> dict[str, bytes]:
+    """The reconstruction in COLMAP's text format (``cameras.txt``, ``images.txt``,
+    ``points3D.txt``; COLMAP's own camera convention, world frame of the recording, metres) plus
+    ``keyframes.txt`` (``image_name pv_frame_index timestamp_ticks``: the image names are
+    egograph's temporary keyframe files, so this maps them back to PV frames)."""
+    folder.mkdir(parents=True, exist_ok=True)
+    recon.write_text(str(folder))
+    files = {p.name: p.read_bytes() for p in sorted(folder.iterdir()) if p.is_file()}
+    rows = "".join(f"{n} {int(i)} {int(timestamps[int(i)])}\n" for n, i in zip(names, frames))
+    files["keyframes.txt"] = ("# image_name pv_frame_index timestamp (100 ns ticks)\n" + rows).encode()
+    return files
 
 
 def _known_pose_reconstruction(db_path: Path, frames, names, pv_estimate):

@@ -83,6 +83,7 @@ class RefineResult:
     position_cov: np.ndarray | None = None   # (N, 3, 3) world-frame PV position covariance, m² (NaN: none)
     selfcheck: dict = field(default_factory=dict)   # held-out residuals, segments, what was kept and why
     solved_pv_poses: np.ndarray | None = None        # (N, 4, 4) row-vector: the solve before the no-harm rule
+    colmap_model: dict | None = None  # refine.colmap: the bundle-adjusted model's files (name -> bytes), OUT/colmap/
 
 
 # ------------------------------------------------------------------ HoloLens factors
@@ -343,13 +344,19 @@ def refine_recording(rec, cfg: RefineConfig | None = None, progress: bool = Fals
         cov = cov + np.where(np.isfinite(e)[:, :, None], e[:, :, None] * e[:, None, :], 0.0)
     pv_row = np.swapaxes(pv_col, 1, 2)
     depth_row, depth_valid = corrected_depth_poses(rec, pv_row)
+    from egograph.poses.colmap import MODEL_KEY
+
     stats = dict(rg.stats, solver=rep)
+    model = None
+    if isinstance(stats.get("colmap"), dict) and MODEL_KEY in stats["colmap"]:
+        stats["colmap"] = dict(stats["colmap"])
+        model = stats["colmap"].pop(MODEL_KEY)   # files, not figures: OUT/colmap/, not report.json
     mesh = next((c for c in rg.constraints if c.source == "mesh"), None)
     if mesh is not None and "keyframes" in mesh.info:
         stats["mesh_keyframes"] = [dataclasses.asdict(k) for k in mesh.info["keyframes"]]
     return RefineResult(rec.timestamps.copy(), pv_row, depth_row, np.isfinite(pv_row).all(axis=(1, 2)), depth_valid,
                         rg.stage_seconds, rg.factor_counts, stats, pose_change(rec.pv_poses, pv_row), cov, check,
-                        np.swapaxes(refined_col, 1, 2))
+                        np.swapaxes(refined_col, 1, 2), model)
 
 
 def apply_selfcheck(rec, cfg: RefineConfig, rg: RefinementGraph, refined_col: np.ndarray) -> tuple[np.ndarray, dict]:
@@ -439,7 +446,7 @@ def pose_change(before_row: np.ndarray, after_row: np.ndarray) -> dict:
 def write_refined(result: RefineResult, out: str | Path, rec, cfg: RefineConfig, extra: dict | None = None,
                   run_files: dict[str, str] | None = None) -> Path:
     """Write OUT/{pv_pose.json, depth_ahat_pose.json, pv_pose.tum, depth_ahat_pose.tum, report.json, report.md}
-    atomically, with ``run_files`` (name -> text: run record, configuration) in the same rename.
+    (and OUT/colmap/ with refine.colmap: the bundle-adjusted model in COLMAP's text format) atomically, with ``run_files`` (name -> text: run record, configuration) in the same rename.
     Refuses to write into the recording's own folder."""
     from egograph.core.config import to_dict
     from egograph.io.atomic import atomic_dir
@@ -470,6 +477,10 @@ def write_refined(result: RefineResult, out: str | Path, rec, cfg: RefineConfig,
             write_position_covariance(tmp / "pv_position_covariance.json", result.timestamps, result.position_cov)
         (tmp / "report.json").write_text(json.dumps(report, indent=1, default=_jsonable))
         (tmp / "report.md").write_text(report_markdown(report))
+        if result.colmap_model:
+            (tmp / "colmap").mkdir()
+            for name, data in result.colmap_model.items():
+                (tmp / "colmap" / name).write_bytes(data)
         for name, text in (run_files or {}).items():
             (tmp / name).write_text(text)
     return out
