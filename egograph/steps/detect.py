@@ -74,13 +74,9 @@ def enroll_svoe(rec: Recording, encoder, cfg, report: DetectReport, n_labels: in
     """Views of each instance's ``svoe.txt`` box (see :func:`egograph.frontend.matching.svoe_views`)."""
     from egograph.frontend.matching import svoe_views
     from egograph.io.annotations import load_annotations
-    from egograph.io.recording import locate_svoe
+    from egograph.steps.recording import require_svoe
 
-    look = locate_svoe(rec.seq_dir, rec.annotation_dir, rec.svoe_dir or None)
-    if look.found is None:
-        raise InputError(rec.seq_dir, "no SVOE enrollment (svoe.txt) found; tried " + ", ".join(look.tried[:6])
-                         + "; set io.svoe_dir")
-    path = Path(look.found)
+    path = require_svoe(rec)
     ann = load_annotations(rec.annotation_dir, svoe_path=path)
     views = {}
     for e in ann.svoe:

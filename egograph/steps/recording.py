@@ -45,6 +45,18 @@ def n_instances(rec: Recording) -> int | None:
     return None if names is None else len(names)
 
 
+def require_svoe(rec: Recording) -> Path:
+    """The recording's ``svoe.txt`` (:func:`egograph.io.recording.locate_svoe`); InputError listing
+    the paths tried when there is none."""
+    from egograph.io.recording import locate_svoe
+
+    look = locate_svoe(rec.seq_dir, rec.annotation_dir, rec.svoe_dir or None)
+    if look.found is None:
+        raise InputError(rec.seq_dir, "no SVOE enrollment (svoe.txt) found; tried " + ", ".join(look.tried[:6])
+                         + "; set io.svoe_dir")
+    return Path(look.found)
+
+
 def require_annotations(rec: Recording, what: str) -> Path:
     if rec.annotation_dir is None:
         tried = next((lk.tried for lk in rec.lookups if lk.what == "annotations"), [])

@@ -16,7 +16,7 @@ from pathlib import Path
 from egograph.core.errors import EgographError, InputError
 from egograph.io.recording import Recording, report_problem
 from egograph.steps import outputs
-from egograph.steps.recording import require_annotations
+from egograph.steps.recording import require_annotations, require_svoe
 
 
 @dataclass
@@ -49,7 +49,6 @@ def sot(rec: Recording, cfg, out: str | Path, *, method: str = "csrt", overwrite
 
     from egograph.frontend.sot import METHODS, SotState, step_frame
     from egograph.io.annotations import load_annotations
-    from egograph.io.recording import locate_svoe
     from egograph.io.textio import write_text_dir
 
     if method not in METHODS:
@@ -58,10 +57,8 @@ def sot(rec: Recording, cfg, out: str | Path, *, method: str = "csrt", overwrite
     if outputs.up_to_date(Path(out), record, overwrite):
         return None
     require_annotations(rec, "the SVOE boxes the trackers start from")
-    look = locate_svoe(rec.seq_dir, rec.annotation_dir, rec.svoe_dir or None)
-    if look.found is None:
-        raise InputError(rec.seq_dir, "no SVOE enrollment (svoe.txt) found; tried " + ", ".join(look.tried[:6]))
-    ann = load_annotations(rec.annotation_dir, box_format=cfg.io.box_format, svoe_path=look.found)
+    svoe = require_svoe(rec)
+    ann = load_annotations(rec.annotation_dir, box_format=cfg.io.box_format, svoe_path=svoe)
     report = SotReport(method)
     states = []
     for e in ann.svoe:
@@ -70,11 +67,11 @@ def sot(rec: Recording, cfg, out: str | Path, *, method: str = "csrt", overwrite
         try:
             start = rec.index_of(e.ts)
         except (KeyError, ValueError, EgographError):
-            report.not_started[e.instance] = f"{look.found}: frame {e.ts} is no PV frame"
+            report.not_started[e.instance] = f"{svoe}: frame {e.ts} is no PV frame"
             continue
         states.append(SotState(e.instance, start, (e.box.x_min, e.box.y_min, e.box.x_max, e.box.y_max)))
     if not states:
-        raise InputError(Path(look.found), "no SVOE box names a PV frame of this recording: nothing to track")
+        raise InputError(svoe, "no SVOE box names a PV frame of this recording: nothing to track")
     first = min(s.start for s in states)
     files = {f"{int(t)}.txt": "" for t in rec.timestamps}
     for i in tqdm(range(first, len(rec)), desc=f"sot ({method})", unit="frame", disable=not progress,
@@ -99,9 +96,9 @@ def sot(rec: Recording, cfg, out: str | Path, *, method: str = "csrt", overwrite
             report.not_started.setdefault(s.instance, f"its SVOE frame {rec.pv_path(s.start)} could not be read "
                                                       "or the box lies outside it")
     for k, why in report.not_started.items():
-        report_problem(rec.strict, look.found, f"instance {k}: {why}")
+        report_problem(rec.strict, svoe, f"instance {k}: {why}")
     if not report.started:
-        raise InputError(Path(look.found), "no tracker could be started (every SVOE frame missing or box outside)")
+        raise InputError(svoe, "no tracker could be started (every SVOE frame missing or box outside)")
     if report.skipped_frames:
         report_problem(rec.strict, report.skipped_frames[0], f"{len(report.skipped_frames)} PV images missing or "
                                                              "unreadable (this one first): no boxes in those frames")
@@ -114,12 +111,10 @@ def eval_2d(rec: Recording, detections: str | Path, cfg):
     """The 2D table (:mod:`egograph.eval.tracking2d`) of the detection set or folder ``detections``
     against the recording's ``2d_bbox_annot/``."""
     from egograph.eval.tracking2d import evaluate_2d
-    from egograph.io.annotations import read_bbox_annot_dir
+    from egograph.io.annotations import ci_child, read_bbox_annot_dir
     from egograph.io.detections import read_detection_dir
 
     ann = require_annotations(rec, "2d_bbox_annot/ to score boxes against")
-    from egograph.io.annotations import ci_child
-
     folder = ci_child(ann, "2d_bbox_annot")
     if not folder.is_dir():
         raise InputError(folder, "no 2D box annotations (2d_bbox_annot/) to score against")
