@@ -2,10 +2,13 @@
 """Benchmark the synthetic generator (frames/s, depth only and with RGB) and the reader
 (frames/s to open a recording and load poses + every depth frame).
 
-    taskset -c 0 .venv/bin/python tools/bench_synth.py --frames 3000 --rgb-frames 300
+    LP_NUM_THREADS=1 taskset -c 0 .venv/bin/python tools/bench_synth.py --frames 3000 --rgb-frames 300
 
 Wall-clock and CPU seconds (the process's, all threads) are both printed: on a shared machine the
-CPU figure is the one that says what one core does (run it under ``taskset -c 0`` for one core).
+CPU figure is the one that says what one core does (run it under ``taskset -c 0`` for one core;
+``LP_NUM_THREADS=1`` gives Mesa's software rasteriser one thread). The PV colour stage alone is
+the difference between a run with RGB and a depth-only run of the same frames (same seed), per
+renderer (``--renderers``, default both: ``gl`` the rasteriser, ``raycast`` the reference).
 Also prints the never-visible share of true intervals of the depth-only recording.
 """
 
@@ -34,6 +37,8 @@ def main() -> None:
     ap.add_argument("--rgb-frames", type=int, default=300, help="frames of the run with RGB (0 to skip)")
     ap.add_argument("--seed", type=int, default=1)
     ap.add_argument("--keep", type=Path, help="keep the depth-only recording here")
+    ap.add_argument("--renderers", nargs="+", default=["gl", "raycast"], choices=["gl", "raycast"],
+                    help="PV renderers to time in the runs with RGB")
     args = ap.parse_args()
 
     tmp = Path(tempfile.mkdtemp(prefix="bench_synth_"))
@@ -49,16 +54,28 @@ def main() -> None:
         rec = Recording.open(out)
         n = sum(rec.depth_raw(i) is not None for i in range(len(rec)))
         rows.append(("read poses + all depth frames", n, time.perf_counter() - t, time.process_time() - c))
+        pv_rows = []
         if args.rgb_frames:
-            cfg = load_config(SynthConfig, args.config, [f"frames={args.rgb_frames}", "pv.rgb=true"])
+            cfg = load_config(SynthConfig, args.config, [f"frames={args.rgb_frames}", "pv.rgb=false"])
             c = time.process_time()
-            r = generate(tmp / "rgb", cfg, seed=args.seed, progress=True)
-            rows.append(("generate, with RGB", r.frames, r.seconds, time.process_time() - c))
+            r = generate(tmp / "rgb_base", cfg, seed=args.seed, progress=True)
+            base = (r.seconds, time.process_time() - c)
+            rows.append(("generate, depth only (RGB's frames)", r.frames, *base))
+            for ren in args.renderers:
+                cfg = load_config(SynthConfig, args.config, [f"frames={args.rgb_frames}", "pv.rgb=true",
+                                                             f"pv.renderer={ren}"])
+                c = time.process_time()
+                r = generate(tmp / f"rgb_{ren}", cfg, seed=args.seed, progress=True)
+                cpu = time.process_time() - c
+                rows.append((f"generate, with RGB ({ren})", r.frames, r.seconds, cpu))
+                pv_rows.append((f"PV colour alone ({ren}: render + PNG)", r.frames, r.seconds - base[0], cpu - base[1]))
+                shutil.rmtree(tmp / f"rgb_{ren}", ignore_errors=True)
+        rows += pv_rows
     finally:
         shutil.rmtree(tmp, ignore_errors=True)
-    print(f"\n{'stage':34s} {'frames':>7s} {'seconds':>8s} {'frames/s':>9s} {'CPU s':>8s} {'frames/CPU-s':>13s}")
+    print(f"\n{'stage':40s} {'frames':>6s} {'seconds':>8s} {'frames/s':>8s} {'CPU s':>7s} {'frames/CPU-s':>12s}")
     for name, n, s, cpu in rows:
-        print(f"{name:34s} {n:7d} {s:8.1f} {n / s:9.1f} {cpu:8.1f} {n / cpu:13.1f}")
+        print(f"{name:40s} {n:6d} {s:8.1f} {n / max(s, 1e-9):8.1f} {cpu:7.1f} {n / max(cpu, 1e-9):12.1f}")
     print(f"\ntrue intervals never a quarter visible (intervals_never_visible): {never}/{total}"
           f" ({100 * never / max(total, 1):.0f} %)")
     if args.frames:

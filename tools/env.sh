@@ -1,7 +1,8 @@
 #!/usr/bin/env bash
 # Create or reuse .venv and install egograph (editable) with its test runner and optional extras
 # (sourced by demo.sh/test.sh).
-# Re-installs only when setup.cfg changes. Installs Open3D's system library (libusb-1.0-0) when missing.
+# Re-installs only when setup.cfg changes. Installs the system libraries (libusb-1.0-0 for Open3D,
+# libegl1 and libgl1-mesa-dri for the generator's OpenGL renderer) when missing.
 set -euo pipefail
 REPO="$(cd "$(dirname "${BASH_SOURCE[0]}")/.." && pwd)"
 PY="${PYTHON:-python3.11}"
@@ -9,12 +10,17 @@ command -v "$PY" >/dev/null 2>&1 || PY=python3
 "$PY" -c 'import sys; sys.exit(0 if sys.version_info[:2] >= (3, 11) else 1)' || {
   echo "egograph needs Python 3.11 or newer (found: $("$PY" --version 2>&1))" >&2; exit 1; }
 
-if ! ldconfig -p 2>/dev/null | grep -q 'libusb-1.0.so.0'; then
+# System libraries: libusb-1.0 (Open3D), EGL + Mesa's software OpenGL (the generator's PV renderer).
+NEED=()
+ldconfig -p 2>/dev/null | grep -q 'libusb-1.0.so.0' || NEED+=(libusb-1.0-0)
+ldconfig -p 2>/dev/null | grep -q 'libEGL.so.1' || NEED+=(libegl1)
+ls /usr/lib/*/dri/swrast_dri.so /usr/lib/dri/swrast_dri.so >/dev/null 2>&1 || NEED+=(libgl1-mesa-dri)
+if [ "${#NEED[@]}" -gt 0 ]; then
   if [ "$(id -u)" = 0 ] && command -v apt-get >/dev/null 2>&1; then
-    echo "installing libusb-1.0-0 (needed by Open3D)..." >&2
-    (apt-get update -qq && DEBIAN_FRONTEND=noninteractive apt-get install -y -qq libusb-1.0-0) >&2
+    echo "installing ${NEED[*]} (Open3D, the PV renderer)..." >&2
+    (apt-get update -qq && DEBIAN_FRONTEND=noninteractive apt-get install -y -qq "${NEED[@]}") >&2
   else
-    echo "Open3D needs the system library libusb-1.0: run 'sudo apt-get install libusb-1.0-0'" >&2; exit 1
+    echo "egograph needs the system packages ${NEED[*]}: run 'sudo apt-get install ${NEED[*]}'" >&2; exit 1
   fi
 fi
 

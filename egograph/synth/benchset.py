@@ -25,7 +25,7 @@ from egograph.geometry.observations import Observations
 from egograph.io.recording import Recording
 from egograph.synth.config import SynthConfig
 from egograph.synth.frontend import FRONTEND_REVISION
-from egograph.synth.generate import GENERATOR_REVISION, generate, redetect
+from egograph.synth.generate import GENERATOR_REVISION, PV_REVISION, generate, redetect
 
 ORACLE = "oracle"
 """Observation source: the true boxes (:func:`egograph.synth.oracle.true_box_detections`)."""
@@ -34,9 +34,19 @@ ANNOTATED_BOXES = "boxes"
 """Observation source: the annotated 2D boxes (every 5th frame when at least a quarter visible)."""
 
 
+# PV knobs that change how colour pixels are made and stored, not the scene, depth, poses or views:
+# the renderers agree to a few pixels in 10,000 (tests/test_synth_render.py), so a cache made by the
+# other renderer stays valid for everything but its RGB frames (rgb_benchmark_set checks those).
+PIXEL_ONLY_PV_KNOBS = ("renderer", "png_compression")
+
+
 def rendered_config(config: dict) -> dict:
-    """A recording's config without its detection front-ends: what re-rendering depends on."""
-    return {k: v for k, v in config.items() if k != "detections"}
+    """A recording's config without its detection front-ends and the PV pixel knobs: what
+    re-rendering the depth, poses and views depends on."""
+    out = {k: v for k, v in config.items() if k != "detections"}
+    if isinstance(out.get("pv"), dict):
+        out["pv"] = {k: v for k, v in out["pv"].items() if k not in PIXEL_ONLY_PV_KNOBS}
+    return out
 
 
 def set_dir(cache: str | Path, frames: int, overrides: Sequence[str] = ()) -> Path:
@@ -71,15 +81,17 @@ def benchmark_set(seeds: Sequence[int], frames: int, *, config: str | Path, cach
 
 def rgb_benchmark_set(seeds: Sequence[int], frames: int, *, config: str | Path, cache: str | Path,
                       overrides: Sequence[str] = ()) -> list[Path]:
-    """Cached recordings with PV RGB (slow to generate: about 3 frames/s), for pose refinement
-    with COLMAP. Refinement never reads the detections: a front-end change does not re-render."""
+    """Cached recordings with PV RGB, for pose refinement with COLMAP and the appearance front-end.
+    Refinement never reads the simulated detections: a front-end change does not re-render; a
+    change of the PV renderer or its revision does."""
     cfg = load_config(SynthConfig, config, [f"frames={frames}", *overrides])
     out = []
     for seed in seeds:
         root = set_dir(cache, frames, overrides) / f"seed{seed}"
         meta = root / "recording.json"
-        ok = meta.exists() and json.loads(meta.read_text()).get("revision") == GENERATOR_REVISION \
-            and rendered_config(json.loads(meta.read_text())["config"]) == rendered_config(to_dict(cfg))
+        have = json.loads(meta.read_text()) if meta.exists() else {}
+        ok = have.get("revision") == GENERATOR_REVISION and have.get("pv_revision") == PV_REVISION \
+            and have["config"] == {**to_dict(cfg), "detections": have["config"].get("detections")}
         if not ok:
             print(f"generating RGB benchmark recording seed {seed} ({frames} frames) -> {root}", flush=True)
             generate(root, cfg, seed=seed, progress=True)

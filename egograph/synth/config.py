@@ -95,7 +95,11 @@ class PvConfig(Checked):
     focal: float = knob(1000.0, "PV focal length, pixels (1280x720, about 65 deg horizontal field of view)", gt=0.0)
     tilt: float = knob(5.0, "PV camera pitch below the head's forward direction, degrees", min=-90.0, max=90.0)
     rgb: bool = knob(True, "render PV RGB frames (switch off for speed: depth, poses, annotations are always written)")
-    png_compression: int = knob(1, "PNG compression level of PV frames (0-9)", min=0, max=9)
+    renderer: str = knob("gl", "PV colour renderer: gl (OpenGL rasteriser on a headless EGL context, Mesa's llvmpipe "
+                         "without a GPU; about 8x faster) or raycast (Open3D ray casting shaded in numpy: the same "
+                         "shading model, the reference the rasteriser is tested against)", choices=["gl", "raycast"])
+    png_compression: int = knob(1, "deflate level of PV frames (0-9; 0 stores, ISA-L compresses at 1-3 and treats "
+                                   "higher levels as 3)", min=0, max=9)
     visibility_downsample: int = knob(4, "PV visibility buffer is rendered at 1/N resolution (occlusion and box annotations)",
                                       min=1)
 

@@ -18,12 +18,14 @@ from tqdm import tqdm
 
 from egograph import __version__
 from egograph.core.config import to_dict
+from egograph.core.errors import ConfigError
 from egograph.core.types import Box, Detection
 from egograph.geometry.hl2ss import invert_rigid, pv_project, transform_points
 from egograph.io.annotations import Annotations, CenterAnnotation, MotionInterval, SvoeEnrollment, save_annotations
 from egograph.io.atomic import atomic_dir, atomic_write_text
 from egograph.io.calibration import PV_SHAPE, write_ahat_calibration, write_pv_calibration
 from egograph.io.detections import write_detection_dir
+from egograph.io.png import write_png
 from egograph.io.poses import write_pose_json
 from egograph.synth.config import SynthConfig
 from egograph.synth.frontend import FRONTEND_REVISION, SOURCE_TRUE, FrameView, FrontEnd
@@ -47,6 +49,9 @@ TS0 = 133_400_000_000_000_000  # a HoloLens-like 100 ns tick count (2023)
 # Bumped whenever the same seed and config would render a different recording, so caches of
 # generated recordings (egograph.synth.benchset) know to regenerate.
 GENERATOR_REVISION = 4  # 4: real AHAT calibration, gaze on the hands, hand occlusion, baked mesh, fast RGB
+# Revision of the PV colour frames alone (recordings without RGB do not depend on it): 1 ray cast and
+# shaded in numpy (generator revision 4), 2 rasterised by OpenGL (pv.renderer=gl) and written by io.png.
+PV_REVISION = 2
 STREAMS = ("scene", "activity", "depth", "pose_error", "svoe", "mvpe", "textures", "mesh")
 
 
@@ -129,18 +134,40 @@ def _clutter_spots(rng: np.random.Generator, scene: Scene, per_instance: int) ->
     return out
 
 
-def render_mvpe_photos(scene: Scene, textures: Textures, size: int) -> dict[str, list[np.ndarray]]:
-    """25 photos per instance (12 at 30 deg, 12 at 60 deg elevation, 1 top-down) on a grey backdrop."""
+def open_pv_renderer(cfg: SynthConfig, scene: Scene, textures: Textures, lamps: np.ndarray | None, camera,
+                     background: float = 0.0):
+    """The rasteriser of ``pv.renderer=gl`` for ``camera`` (a PvCalibration or render_gl.Pinhole), or
+    None for ``raycast``. No OpenGL -> ConfigError saying what to install (never a silent switch:
+    the two renderers do not give the same bytes)."""
+    if cfg.pv.renderer != "gl":
+        return None
+    from egograph.synth.render_gl import GlUnavailable, PvRenderer
+
+    try:
+        return PvRenderer(scene, textures, lamps, camera, background)
+    except GlUnavailable as e:
+        raise ConfigError(f"pv.renderer=gl: {e}; or render by ray casting (slower): --set pv.renderer=raycast") from None
+
+
+def render_mvpe_photos(scene: Scene, textures: Textures, size: int, cfg: SynthConfig) -> dict[str, list[np.ndarray]]:
+    """25 RGB photos per instance (12 at 30 deg, 12 at 60 deg elevation, 1 top-down) on a grey
+    backdrop, by ``cfg.pv.renderer``."""
+    from egograph.synth.render_gl import Pinhole
+
     photos: dict[str, list[np.ndarray]] = {}
     f = size * 1.2
-    u, v = np.meshgrid(np.arange(size) + 0.5, np.arange(size) + 0.5)
-    dirs_cam = np.stack([(u - size / 2) / f, -(v - size / 2) / f, -np.ones_like(u)], -1).reshape(-1, 3)
+    backdrop = 0.55
+    gl = open_pv_renderer(cfg, scene, textures, None, Pinhole((size, size), (f, f), (size / 2, size / 2)), backdrop)
+    if gl is None:
+        u, v = np.meshgrid(np.arange(size) + 0.5, np.arange(size) + 0.5)
+        dirs_cam = np.stack([(u - size / 2) / f, -(v - size / 2) / f, -np.ones_like(u)], -1).reshape(-1, 3)
     views = [(30.0, a) for a in range(0, 360, 30)] + [(60.0, a + 15) for a in range(0, 360, 30)] + [(89.0, 0.0)]
     for k, obj in enumerate(scene.objects):
         pos = np.zeros((len(scene.objects), 3)) + 1e3
         pos[k] = 0.0
         yaw = np.zeros(len(scene.objects))
-        geom = build_raycasting_scene(scene, pos, yaw, None, include_static=False)
+        if gl is None:
+            geom = build_raycasting_scene(scene, pos, yaw, None, include_static=False)
         dist = 2.2 * float(np.linalg.norm(obj.size)) / 2 / np.tan(np.arctan(size / 2 / f))
         imgs = []
         for elev, azim in views:
@@ -152,12 +179,19 @@ def render_mvpe_photos(scene: Scene, textures: Textures, size: int) -> dict[str,
             right /= np.linalg.norm(right)
             up = np.cross(right, fwd)
             rot = np.stack([right, up, -fwd])  # rows: camera axes in world (row-vector rotation)
+            if gl is not None:
+                cam_to_world = np.eye(4)
+                cam_to_world[:3, :3], cam_to_world[3, :3] = rot, eye
+                imgs.append(gl.render(cam_to_world, pos, yaw, None, only=k))
+                continue
             dirs = dirs_cam @ rot
             hit = cast(geom, eye, dirs)
             col = shade_hits(scene, textures, hit, eye, dirs, pos, yaw)
-            col[~np.isfinite(hit["t"])] = 0.55
+            col[~np.isfinite(hit["t"])] = backdrop
             imgs.append((col.reshape(size, size, 3) * 255).astype(np.uint8))
         photos[obj.name] = imgs
+    if gl is not None:
+        gl.release()
     return photos
 
 
@@ -252,6 +286,10 @@ def generate(out: str | Path, cfg: SynthConfig, seed: int, progress: bool = True
     ds = cfg.pv.visibility_downsample
     vis_dirs, vis_shape = pv_camera_rays(pv_cal, ds)
     rgb_dirs, rgb_shape = pv_camera_rays(pv_cal, 1) if cfg.pv.rgb else (None, None)
+    # Enrollment photos first: they need nothing from the frames, and a missing OpenGL fails here,
+    # before any frame is rendered.
+    photos = render_mvpe_photos(scene, textures, cfg.mvpe_photo_size, cfg)
+    pv_renderer = open_pv_renderer(cfg, scene, textures, lamps, pv_cal) if cfg.pv.rgb else None
     k_pv = pv_cal.intrinsics
 
     visible = np.zeros((n, k))
@@ -266,8 +304,6 @@ def generate(out: str | Path, cfg: SynthConfig, seed: int, progress: bool = True
         seq_dir = tmp / cfg.sequence
         (seq_dir / "pv").mkdir(parents=True)
         (seq_dir / "depth_ahat").mkdir()
-        png_rgb = [cv2.IMWRITE_PNG_COMPRESSION, cfg.pv.png_compression]
-        png_depth = [cv2.IMWRITE_PNG_COMPRESSION, 1]
         for i in tqdm(range(n), desc=f"synth {cfg.sequence}", unit="frame", disable=not progress, mininterval=1.0):
             obj_pos, obj_yaw = traj.objects_at(i)
             hand, hand_yaw, hand_on = traj.hand_at(i)
@@ -319,17 +355,22 @@ def generate(out: str | Path, cfg: SynthConfig, seed: int, progress: bool = True
             geom_d = build_raycasting_scene(scene, obj_d, yaw_d, (hand_d, hand_yaw_d) if hand_d_on else None)
             raw = simulate_ahat(rng_d, scene, geom_d, ahat_cam_to_node @ depth_true[i], ahat_dirs, ahat_norms, cfg.ahat,
                                 ray_valid)
-            cv2.imwrite(str(seq_dir / "depth_ahat" / f"{ts[i]}.png"), raw, png_depth)
-            if cfg.pv.rgb:
+            write_png(seq_dir / "depth_ahat" / f"{ts[i]}.png", raw, 1)
+            if pv_renderer is not None:
+                img = pv_renderer.render(pose, obj_pos, obj_yaw, (hand, hand_yaw) if hand_on else None)
+            elif cfg.pv.rgb:  # pv.renderer=raycast: the reference the rasteriser is tested against
                 d = rgb_dirs @ pose[:3, :3]
                 col = shade_hits(scene, textures, cast(geom, origin, d), origin, d, obj_pos, obj_yaw, lamps)
                 img = (col.reshape(rgb_shape + (3,)) * 255).astype(np.uint8)
-                cv2.imwrite(str(seq_dir / "pv" / f"{ts[i]}.png"), cv2.cvtColor(img, cv2.COLOR_RGB2BGR), png_rgb)
+            if cfg.pv.rgb:
+                write_png(seq_dir / "pv" / f"{ts[i]}.png", img, cfg.pv.png_compression)
 
+        if pv_renderer is not None:
+            pv_renderer.release()
         views = {"visible": visible, "boxes": boxes, "clutter_boxes": clutter_boxes, "motion_dps": motion, "twins": twins}
         detections, det_truth = simulate_detections(cfg, seed, ts, views)
         _write_outputs(tmp, cfg, seed, scene, traj, ts, pv_rep, depth_rep, pv_true, depth_true, ahat_cal, pv_cal,
-                       views, detections, det_truth, bbox_annot, svoe, jumps, depth_offset, rngs, textures)
+                       views, detections, det_truth, bbox_annot, svoe, jumps, depth_offset, rngs, photos)
         for name, text in (extra_files or {}).items():
             (tmp / name).write_text(text)
     seconds = time.perf_counter() - t_start
@@ -339,7 +380,7 @@ def generate(out: str | Path, cfg: SynthConfig, seed: int, progress: bool = True
 
 def _write_outputs(tmp: Path, cfg: SynthConfig, seed: int, scene: Scene, traj: Trajectory, ts: np.ndarray,
                    pv_rep, depth_rep, pv_true, depth_true, ahat_cal, pv_cal, views, detections, det_truth,
-                   bbox_annot, svoe, jumps, depth_offset, rngs, textures) -> None:
+                   bbox_annot, svoe, jumps, depth_offset, rngs, photos) -> None:
     import open3d as o3d
 
     seq = cfg.sequence
@@ -369,7 +410,7 @@ def _write_outputs(tmp: Path, cfg: SynthConfig, seed: int, scene: Scene, traj: T
     write_detection_sets(tmp, seq, detections, det_truth)
 
     # MVPE enrollment photos.
-    for name, imgs in render_mvpe_photos(scene, textures, cfg.mvpe_photo_size).items():
+    for name, imgs in photos.items():
         d = tmp / "mvpe" / seq / name
         d.mkdir(parents=True)
         for m, img in enumerate(imgs):
@@ -401,6 +442,6 @@ def _write_outputs(tmp: Path, cfg: SynthConfig, seed: int, scene: Scene, traj: T
     (gt / "scene.json").write_text(json.dumps(meta, indent=1))
     (tmp / "recording.json").write_text(json.dumps({
         "generator": "egograph.synth", "version": __version__, "revision": GENERATOR_REVISION,
-        "frontend_revision": FRONTEND_REVISION, "seed": seed, "sequence": seq,
+        "frontend_revision": FRONTEND_REVISION, **({"pv_revision": PV_REVISION} if cfg.pv.rgb else {}), "seed": seed, "sequence": seq,
         "frames": cfg.frames, "detection_sets": sorted(detections), "primary_detections": cfg.detections.primary,
         "config": to_dict(cfg)}, indent=1))

@@ -276,6 +276,10 @@ LIGHT = np.array([0.3, 0.85, 0.4]) / np.linalg.norm([0.3, 0.85, 0.4])
 LAMP_HEIGHT = 0.35  # lamps hang this far below the ceiling, metres
 LAMP_REACH = 2.0    # distance at which a lamp's light falls to half, metres
 DETAIL_HALF_WIDTH = 0.008  # half width of the band that tells a look-alike twin apart, metres
+# Room surfaces are textured at world coordinates shifted by this much (metres): the floor (y = 0) and
+# walls at round coordinates otherwise lie exactly on a lattice plane, where float rounding of the
+# hit point picks one side or the other pixel by pixel (a speckle that is not on the surface).
+STATIC_TEXTURE_SHIFT = 0.0041
 
 
 def room_lamps(rng: np.random.Generator, room_size: np.ndarray, n: int = 2) -> np.ndarray:
@@ -306,7 +310,7 @@ def shade_hits(scene: Scene, textures: Textures, hit: dict, origin: np.ndarray, 
     lut = np.vstack([scene.static_tri_color, [o.color for o in scene.objects], [HAND_COLOR], [[0, 0, 0]]]).astype(np.float32)
     cid = np.where(g == 0, np.minimum(prim, n_static - 1), n_static + np.minimum(g, k + 2).astype(np.int64) - 1)
     cid[~ok] = n_static + k + 1
-    tex_pts = world.copy()
+    tex_pts = world + np.float32(STATIC_TEXTURE_SHIFT)  # objects overwrite theirs below
     detail = []
     for j, obj in enumerate(scene.objects):
         m = np.flatnonzero(ok & (g == j + 1))
