@@ -230,3 +230,33 @@ def test_cost_per_frame_stays_flat_on_a_long_stream():
 def test_run_online_on_no_observations():
     per_frame, trk = run_online(Observations.empty(), stamps(50), CFG)
     assert len(per_frame) == 50 and all(v == [] for v in per_frame.values()) and trk.intervals() == []
+
+
+def test_a_lone_detection_answers_only_when_confident():
+    """One confident match is answered from its frame on (as memory would); a lone weak one
+    (score below graph.provisional_min_score) is not, until a stand confirms the place."""
+    rows = [(100, 0, A, 0.9), (100, 1, B, 0.62)]
+    now, _, _ = live(make_obs(rows))
+    assert all(now[f] == [] for f in range(100))
+    assert all([i for i, _ in now[f]] == [0] and np.allclose(now[f][0][1], A) for f in range(100, N))
+    rows += [(103, 1, B, 0.62), (106, 1, B, 0.62)]  # three agreeing weak matches: a stand
+    now, _, _ = live(make_obs(rows))
+    assert [i for i, _ in now[105]] == [0] and [i for i, _ in now[106]] == [0, 1]
+    assert np.allclose(now[N - 1][1][1], B)
+
+
+@pytest.mark.parametrize("exclusion", [True, False])
+def test_a_glimpse_at_another_instances_stand_is_a_confusion(exclusion):
+    """Instance 1 matched twice on instance 0's stand (a look-alike) gets no answer there while
+    0 holds it with more support (graph.causal_exclusion); its own place is answered."""
+    rng = np.random.default_rng(6)
+    rows = [(f, 0, A + 0.02 * rng.standard_normal(3), 0.8) for f in range(30, 400, 3)]
+    rows += [(300, 1, A + [0.03, 0, 0], 0.9), (303, 1, A - [0.03, 0, 0], 0.9)]
+    rows += [(500, 1, B, 0.9), (503, 1, B, 0.9)]
+    cfg = GraphConfig(negative_evidence=False, causal_exclusion=exclusion)
+    now, _, _ = live(make_obs(rows), cfg)
+    inst1 = {f: xyz for f in now for i, xyz in now[f] if i == 1}
+    if exclusion:
+        assert min(inst1) == 500 and all(np.allclose(xyz, B, atol=0.01) for xyz in inst1.values())
+    else:  # without the rule the confusion is answered from the second glimpse on
+        assert min(inst1) <= 303 and np.linalg.norm(np.subtract(inst1[400], A)) < 0.05

@@ -50,6 +50,7 @@ def accuracy(seeds, frames, cache, lags, overrides, plot: Path | None = None) ->
     names = ["memory", "kf", "graph-causal", *[f"graph-causal lag {s:g} s" for s in lags if s > 0], "graph (offline)"]
     pooled = {(d, n): Counts(THRESHOLDS) for d in ("svoe", "mvpe") for n in names}
     seconds = {n: 0.0 for n in names}
+    per_seed = {}  # (set, tracker, seed) -> counts
     for root in roots:
         rec = open_recording(root, cfg)
         for det_set in ("svoe", "mvpe"):
@@ -65,7 +66,9 @@ def accuracy(seeds, frames, cache, lags, overrides, plot: Path | None = None) ->
                     c = dataclasses.replace(cfg, graph=dataclasses.replace(cfg.graph, lag_s=lag))
                     result = graph_with_scene(rec, obs, c, causal=True)
                 seconds[name] += time.perf_counter() - t
-                pooled[(det_set, name)] = pooled[(det_set, name)] + evaluate(rec, result).total
+                counts = evaluate(rec, result).total
+                per_seed[(det_set, name, root.name)] = counts
+                pooled[(det_set, name)] = pooled[(det_set, name)] + counts
     print(f"Benchmark recordings: seeds {', '.join(map(str, seeds))} x {frames} frames, robust lifting, pooled.\n")
     th = " | ".join(f"P@{t:g}" for t in THRESHOLDS) + " | " + " | ".join(f"R@{t:g}" for t in THRESHOLDS)
     print(f"| set | tracker | {th} | L2 (m) |")
@@ -82,6 +85,14 @@ def accuracy(seeds, frames, cache, lags, overrides, plot: Path | None = None) ->
             print(f"- {d}: P and R >= {base} at every threshold: {pr}; L2 <= {base}: {g.l2_m <= b.l2_m}")
         print(f"- {d}: R@0.25 / memory = {g.recall[0] / max(m.recall[0], 1e-9):.2f} (target >= 1.2); "
               f"P@0.25 = {100 * g.precision[0]:.1f} % (target >= 90)")
+    print("\nPer seed (P@0.25 / R@0.25 / R@1.5, %):\n")
+    print("| set | tracker | " + " | ".join(r.name for r in roots) + " |")
+    print("|---|---|" + "---|" * len(roots))
+    for d in ("svoe", "mvpe"):
+        for n in ("memory", "kf", "graph-causal", "graph (offline)"):
+            cells = [per_seed[(d, n, r.name)] for r in roots]
+            print(f"| {d} | {n} | " + " | ".join(f"{100 * c.precision[0]:.1f} / {100 * c.recall[0]:.1f} / "
+                                                  f"{100 * c.recall[-1]:.1f}" for c in cells) + " |")
     print("\nRecall at 0.25 m against lag:\n")
     print("| set | " + " | ".join(n.replace("graph-causal ", "").replace("graph-causal", "lag 0 s") for n in names[2:])
           + " |")

@@ -130,7 +130,8 @@ class GraphConfig(Checked):
                                        "and more than their offsets to the head do is an object in hand", min=0.0)
     exclusion_radius_m: float = knob(0.15, "offline: a stand of one instance within this distance of another "
                                            "instance's better-supported interval at the same time is a look-alike "
-                                           "confusion and is dropped, metres (0 disables)", min=0.0)
+                                           "confusion and is dropped, metres (0 disables; causal mode: see "
+                                           "causal_exclusion)", min=0.0)
     backfill_max_s: float = knob(3.0, "after a carried stretch, an interval starts at most this long before its "
                                       "first detection, s", min=0.0)
     covariance_floor_m: float = knob(0.03, "isotropic sigma added to every interval covariance for errors shared "
@@ -151,6 +152,14 @@ class GraphConfig(Checked):
     provisional_min_observations: int = knob(2, "causal mode: inlier detections of a place not yet confirmed as a stand "
                                                 "before it is reported as the last-seen place (fewer keep the previous "
                                                 "answer)", min=1)
+    first_min_observations: int = knob(1, "causal mode: inlier detections an instance's first answer needs (1: answer "
+                                          "from its first detection, as the memory baseline does)", min=1)
+    provisional_min_score: float = knob(0.67, "causal mode: a place not yet confirmed as a stand is answered only when "
+                                              "one of its inlier detections has at least this matcher score (a lone "
+                                              "weak match is as likely a look-alike as the object)", min=-1.0, max=1.0)
+    causal_exclusion: bool = knob(True, "causal mode: a new place of one instance within exclusion_radius_m of "
+                                         "another instance's current answer with more inliers is taken for a "
+                                         "look-alike confusion and not answered (the causal form of the offline rule)")
     online_max_rows: int = knob(300, "causal mode: newest detections of the trailing segment kept per instance "
                                      "(bounds memory and time per frame)", min=1)
     online_window_chunks: int = knob(40, "causal mode: each instance's iSAM2 is restarted after this many chunks, "

@@ -7,9 +7,14 @@ per instance and frame is the current best hypothesis:
 
 * a *stand* once the trailing segment passes the stand test (score: its confidence);
 * before that, the *last seen place*: the robust centre of the trailing segment once it has
-  ``graph.provisional_min_observations`` inliers (score: the same confidence formula, low
-  with few inliers); fewer than that at a new place keeps the previous answer (one stray
-  false match neither moves nor silences the object);
+  ``graph.provisional_min_observations`` inliers (an instance's first answer:
+  ``graph.first_min_observations``, 1 by default, as the memory baseline answers) and one of
+  them has a matcher score of at least ``graph.provisional_min_score`` (score: the same
+  confidence formula, low with few inliers); less than that at a new place keeps the previous
+  answer (one stray false match neither moves nor silences the object);
+* not a new place within ``graph.exclusion_radius_m`` of another instance's current answer
+  with more inliers (``graph.causal_exclusion``: a look-alike confusion, the causal form of
+  the offline rule);
 * *nothing* while the object is carried (the segment moves with the head, or a still stand
   seen from close by has no support under it), and from the frame where depth shows the
   held place empty (negative evidence, ``graph.negative``) until it is seen again.
@@ -117,6 +122,7 @@ class _Instance:
     last_negative_check: int = -1
     carry: deque = field(default_factory=lambda: deque(maxlen=6))  # (world, camera) of the last carried rows
     in_carry: bool = False              # the answer is nothing because the object is carried
+    answered: bool = False              # some hypothesis has been held (the first one needs first_min_observations)
 
 
 class _Rows:
@@ -130,14 +136,14 @@ class _Rows:
         self.ticks = np.zeros(n, np.int64)
         self.world, self.camera = np.zeros((n, 3)), np.zeros((n, 3))
         self.cov, self.info = np.zeros((n, 3, 3)), np.zeros((n, 3, 3))
-        self.range = np.zeros(n)
+        self.range, self.score = np.zeros(n), np.zeros(n)
         self.lo = self.hi = 0
 
-    _FIELDS = ("row", "frame", "ticks", "world", "camera", "cov", "info", "range")
+    _FIELDS = ("row", "frame", "ticks", "world", "camera", "cov", "info", "range", "score")
 
-    def append(self, row0: int, frame: int, ticks: int, world, cov, info, camera, rng) -> None:
+    def append(self, row0: int, frame: int, ticks: int, world, cov, info, camera, rng, score) -> None:
         m = min(len(world), self.cap)
-        world, cov, info, camera, rng = world[-m:], cov[-m:], info[-m:], camera[-m:], rng[-m:]
+        world, cov, info, camera, rng, score = world[-m:], cov[-m:], info[-m:], camera[-m:], rng[-m:], score[-m:]
         if self.hi + m > len(self.row):
             keep = max(0, min(self.hi - self.lo, self.cap - m))
             for name in self._FIELDS:
@@ -148,6 +154,7 @@ class _Rows:
         self.row[sl] = row0 + np.arange(m)
         self.frame[sl], self.ticks[sl] = frame, ticks
         self.world[sl], self.cov[sl], self.info[sl], self.camera[sl], self.range[sl] = world, cov, info, camera, rng
+        self.score[sl] = score
         self.hi += m
         self.lo = max(self.lo, self.hi - self.cap)
 
@@ -292,7 +299,8 @@ class OnlineTracker:
             if new_chunk:
                 st.switches.append(sw)
         rng = np.asarray(obs.range_m[sel], dtype=float)
-        st.rows.append(st.n_rows, frame, ts, world, cov, info, camera, rng)
+        score = np.asarray(obs.score[sel], dtype=float)
+        st.rows.append(st.n_rows, frame, ts, world, cov, info, camera, rng, score)
         st.n_rows += len(sel)
         st.rows.drop_before(st.seg_first_row)
         self._decide(inst, st, here, frame)
@@ -337,7 +345,8 @@ class OnlineTracker:
                 return
         if seg.stationary:
             kind = STAND
-        elif seg.n_inliers >= cfg.provisional_min_observations:
+        elif (seg.n_inliers >= (cfg.provisional_min_observations if st.answered else cfg.first_min_observations)
+              and st.rows.score[st.rows.lo:st.rows.hi][seg.inliers].max() >= cfg.provisional_min_score):
             kind = LAST_SEEN
         else:
             return  # too little at a new place: keep the previous answer
@@ -362,6 +371,8 @@ class OnlineTracker:
             return
         if kind == LAST_SEEN and held is not None and held.kind == STAND:
             return  # a held stand gives way to another stand, a carry or an empty place, not to a glimpse
+        if cfg.causal_exclusion and self._claimed(inst, seg.xyz, seg.n_inliers):
+            return  # another instance's better-supported answer is there: a look-alike confusion
         hyp = Hypothesis(inst, kind, seg.xyz, seg.covariance, conf, seg.n_inliers, int(inl.min()),
                          int(inl.max()), int(inl_ticks.min()), int(inl_ticks.max()), st.segment_id, st.segment_id)
         same_place = held is not None and np.linalg.norm(held.xyz - seg.xyz) <= cfg.merge_radius_m
@@ -381,6 +392,7 @@ class OnlineTracker:
             st.held.ended_by = "detection" if hyp is not None else "carried"
         st.held = hyp
         if hyp is not None:
+            st.answered = True
             st.in_carry = False
             st.carry.clear()
         oldest = self.pending[0][0] if self.pending else self.last_frame
@@ -388,6 +400,16 @@ class OnlineTracker:
         while st.runs and st.runs[-1].start >= start:
             st.runs.pop()
         st.runs.append(_Run(start, hyp))
+
+    def _claimed(self, inst: int, xyz: np.ndarray, n_inliers: int) -> bool:
+        """Whether another instance's current answer lies within ``exclusion_radius_m`` of ``xyz``
+        with more inlier detections than ``n_inliers`` (its state as of now: causal)."""
+        r = self.cfg.exclusion_radius_m
+        for j, other in self.inst.items():
+            h = other.held
+            if j != inst and h is not None and h.n_inliers > n_inliers and np.linalg.norm(h.xyz - xyz) <= r:
+                return True
+        return False
 
     def _check_negative(self, inst: int, st: _Instance, frame: int) -> None:
         """End the held answer when depth shows its place empty (a run of ``min_frames`` empty
