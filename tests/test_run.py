@@ -72,12 +72,12 @@ def test_dataset_ids_of_synth_outputs_release_and_plain_roots(tmp_path):
         list_dataset(tmp_path / "missing")
 
 
-def test_stages_bring_what_they_need_and_detect_is_refused():
+def test_stages_bring_what_they_need():
     assert resolve_stages(["eval"]) == ["lift", "track", "eval"]
     assert resolve_stages(["regt", "refine"]) == ["refine", "regt"]
     assert resolve_stages(None) == ["lift", "track", "eval"]
-    with pytest.raises(ConfigError, match="detect: not available yet"):
-        resolve_stages(["lift", "detect"])
+    assert resolve_stages(["lift", "detect"]) == ["detect", "lift"]
+    assert resolve_stages(["detect"]) == ["detect"]  # never brought: it replaces the recording's detections
     with pytest.raises(ConfigError, match="unknown stage 'trak'"):
         resolve_stages(["trak"])
 
@@ -103,6 +103,25 @@ def test_plan_names_and_cache_keys_follow_the_configuration(tmp_path):
     p4 = plan_run(tmp_path / "ds", tmp_path / "runs", cfg, stages=["refine", "regt", "lift"])
     assert [t.key for t in p4.tasks[:3]] == ["refine/a", "lift/a", "regt/a"]
     assert p4.tasks[1].deps == ["refine/a"] and p4.tasks[1].spec["poses"] == str(p4.tasks[0].out)
+    # detect: lift reads its folder; a frontend knob moves detect and everything after it
+    p5 = plan_run(tmp_path / "ds", tmp_path / "runs", cfg, stages=["detect", "eval"], trackers=["kf"], detections="mvpe")
+    t5 = {t.key: t for t in p5.tasks}
+    assert [t.key for t in p5.tasks[:4]] == ["detect/a", "lift/a", "track/a/kf", "eval/a/kf"]
+    assert t5["detect/a"].out.name.startswith("detect-mvpe-") and t5["detect/a"].spec["enroll"] == "mvpe"
+    assert t5["lift/a"].deps == ["detect/a"] and t5["lift/a"].spec["detections"] == str(t5["detect/a"].out)
+    assert t5["lift/a"].out != {t.key: t.out for t in p3.tasks}["lift/a"]  # not the recording's own mvpe set
+    cfg.frontend.similarity_threshold = 0.7
+    t6 = {t.key: t for t in plan_run(tmp_path / "ds", tmp_path / "runs", cfg, stages=["detect", "eval"], trackers=["kf"],
+                                     detections="mvpe").tasks}
+    assert all(t6[k].out != t5[k].out for k in ("detect/a", "lift/a", "track/a/kf", "eval/a/kf"))
+    assert {t.key: t.out for t in plan_run(tmp_path / "ds", tmp_path / "runs", cfg, stages=["eval"],
+                                           trackers=["kf"]).tasks}["lift/a"] == {t.key: t.out for t in p3.tasks}["lift/a"]
+    p7 = plan_run(tmp_path / "ds", tmp_path / "runs", cfg, stages=["refine", "detect", "lift"], detections="svoe")
+    assert [(t.key, t.deps) for t in p7.tasks[:3]] == [("refine/a", []), ("detect/a", ["refine/a"]),
+                                                       ("lift/a", ["detect/a"])]
+    assert p7.tasks[1].spec["poses"] == str(p7.tasks[0].out)
+    with pytest.raises(ConfigError, match="--detections gt: the detect stage produces one of svoe, mvpe"):
+        plan_run(tmp_path / "ds", tmp_path / "runs", cfg, stages=["detect"], detections="gt")
 
 
 def test_cli_refuses_unusable_input_before_writing(tmp_path, capsys):
@@ -112,8 +131,9 @@ def test_cli_refuses_unusable_input_before_writing(tmp_path, capsys):
     assert main(["run", str(tmp_path / "empty"), "--out", str(tmp_path / "runs")]) == 2
     assert "no sequence found" in capsys.readouterr().err
     fake_sequence(tmp_path / "ds" / "s")
-    assert main(["run", str(tmp_path / "ds"), "--out", str(tmp_path / "runs"), "--stages", "detect,track"]) == 2
-    assert "not available yet" in capsys.readouterr().err
+    assert main(["run", str(tmp_path / "ds"), "--out", str(tmp_path / "runs"), "--stages", "detect,track",
+                 "--detections", "gt"]) == 2
+    assert "the detect stage produces one of svoe, mvpe" in capsys.readouterr().err
     assert main(["run", str(tmp_path / "ds"), "--out", str(tmp_path / "runs"), "--trackers", "nope"]) == 2
     assert not (tmp_path / "runs").exists()
 

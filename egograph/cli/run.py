@@ -1,7 +1,7 @@
 """``egograph run``: every stage on every sequence of a dataset, on a Dask cluster.
 
-    egograph run DATASET --out RUNS [--stages lift,track,eval] [--trackers graph,memory]
-                 [--workers N | --scheduler ADDRESS] [--name NAME]
+    egograph run DATASET --out RUNS [--stages [detect,]lift,track,eval] [--trackers graph,memory]
+                 [--detections svoe|mvpe] [--workers N | --scheduler ADDRESS] [--name NAME]
 
 Exit code 0 when every task succeeded, 1 when some failed (each reported with its one-line error,
 the others carried on), 2 when none succeeded or the input is unusable (nothing written then).
@@ -30,11 +30,16 @@ def add_parser(sub, add_config_args, default_config: Path) -> None:
                         "(config.yaml, run.json, summary.json, links per sequence), RUNS/latest")
     s.add_argument("--stages", type=_csv, default=list(DEFAULT_STAGES), metavar="LIST",
                    help=f"comma-separated, from {','.join(STAGES)} (default {','.join(DEFAULT_STAGES)}); a stage "
-                        "brings the ones it needs (eval: track, lift); refine's poses feed the later stages; "
-                        + "; ".join(f"{k}: {v}" for k, v in PLANNED_STAGES.items()))
+                        "brings the ones it needs (eval: track, lift); refine's poses feed the later stages; detect "
+                        "runs `egograph detect` (enrollment --detections, front-end config frontend.*) on each "
+                        "sequence's PV frames and lift reads its detections instead of the recording's"
+                        + "".join(f"; {k}: {v}" for k, v in PLANNED_STAGES.items()))
     s.add_argument("--trackers", type=_csv, default=list(TRACKERS), metavar="LIST",
                    help=f"comma-separated, from {','.join(TRACKERS)} (default all)")
-    s.add_argument("--detections", default="svoe", help="detection set of every sequence (svoe, mvpe; default svoe)")
+    s.add_argument("--detections", default="svoe",
+                   help="detection set of every sequence (svoe, mvpe; default svoe): the recording's own set of "
+                        "that name, or with --stages detect the enrollment detect uses (svoe: the box of "
+                        "svoe.txt; mvpe: the instance photos)")
     s.add_argument("--workers", type=int, default=2,
                    help="worker processes of the local Dask cluster (one thread each; default 2); it listens on "
                         "127.0.0.1 only and opens no dashboard")

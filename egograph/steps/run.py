@@ -3,17 +3,21 @@
 A run is a plan of tasks, one per (sequence, stage[, tracker]), each depending on the tasks whose
 outputs it reads::
 
-    refine ──► lift ──► track/<tracker> ──► eval/<tracker>
+    refine ──► detect ──► lift ──► track/<tracker> ──► eval/<tracker>
        └─────► regt
 
-``refine``, when asked for, feeds its poses to every later stage of that sequence. A stage asked
-for brings the ones it needs (``eval`` needs ``track``, which needs ``lift``); a stage whose
-output is already there for the same inputs and configuration is not computed again, so adding
-them costs nothing.
+``refine``, when asked for, feeds its poses to every later stage of that sequence. ``detect``,
+when asked for, runs the appearance front-end (``egograph detect``, enrollment ``--detections``:
+svoe or mvpe) on the sequence's PV frames, and ``lift`` then reads those detections instead of the
+recording's own detection set of that name. A stage asked for brings the ones it needs (``eval``
+needs ``track``, which needs ``lift``; ``detect`` is never brought, it replaces the recording's
+detections only when asked for); a stage whose output is already there for the same inputs and
+configuration is not computed again, so adding them costs nothing.
 
 Outputs (``RUNS`` is ``--out``)::
 
     RUNS/cache/<seq>/refine-<key>/            refined poses (egograph refine's folder)
+    RUNS/cache/<seq>/detect-<set>-<key>/      detections (egograph detect's folder: <ts>.txt per PV frame)
     RUNS/cache/<seq>/lift-<key>.npz           observations
     RUNS/cache/<seq>/track-<tracker>-<key>/   results folder (reference format + intervals.json)
     RUNS/cache/<seq>/eval-<tracker>-<key>/    eval.json (the ``egograph eval --json`` format)
@@ -21,11 +25,13 @@ Outputs (``RUNS`` is ``--out``)::
     RUNS/<name>/config.yaml                   the resolved configuration
     RUNS/<name>/run.json                      what ran: command, tasks, outputs, status, seconds
     RUNS/<name>/summary.json                  pooled evaluation per tracker, per-sequence rows, failures
-    RUNS/<name>/<seq>/{refined,lifted.npz,<tracker>,eval-<tracker>.json,regt}  links into the cache
+    RUNS/<name>/<seq>/{refined,detections,lifted.npz,<tracker>,eval-<tracker>.json,regt}  links into the cache
     RUNS/latest -> <name>
 
 ``<key>`` is a digest of the configuration sections a stage depends on and the key of the stage it
-reads, so a later run with another tracker set or other graph knobs reuses the lifted observations;
+reads (``detect``'s: the ``frontend`` and ``io`` sections and the detection set), so a later run with
+another tracker set or other graph knobs reuses the lifted observations, and a front-end knob change
+detects again;
 inside, each step's own fingerprint (``egograph.json``, the ``.npz`` provenance) decides whether
 its output is current. ``<name>`` is ``<dataset folder>-<digest>`` of the dataset path, its
 sequences, the stages, trackers, detection set and resolved configuration: the same command names
@@ -53,16 +59,15 @@ from pathlib import Path
 
 from egograph import __version__
 from egograph.core.config import to_dict
-from egograph.core.errors import ConfigError, EgographError
+from egograph.core.errors import ConfigError, EgographError, InputError
 from egograph.steps import outputs
 from egograph.steps.dataset import DatasetSequence, list_dataset
 
-STAGES = ("refine", "lift", "track", "eval", "regt")
+STAGES = ("refine", "detect", "lift", "track", "eval", "regt")
 """Stages in pipeline order."""
 
-PLANNED_STAGES = {"detect": "2D detection from the PV frames is not implemented yet; the detections come from the "
-                            "dataset (--detections, a set name such as svoe or mvpe)"}
-"""Stages of the issue that have no step yet: refused with this reason."""
+PLANNED_STAGES: dict[str, str] = {}
+"""Stages of the issue that have no step yet (none now): refused with this reason."""
 
 DEFAULT_STAGES = ("lift", "track", "eval")
 NEEDS = {"track": "lift", "eval": "track"}
@@ -154,14 +159,19 @@ def resolve_trackers(trackers) -> list[str]:
     return list(dict.fromkeys(names))
 
 
-def stage_keys(cfg, detections: str, refine: bool, trackers: list[str]) -> dict:
+def stage_keys(cfg, detections: str, refine: bool, trackers: list[str], detect: bool = False) -> dict:
     """Cache keys: a digest of what each stage's result depends on in the configuration and the key
-    of the stage it reads (the step's own fingerprint then checks the inputs' contents)."""
+    of the stage it reads (the step's own fingerprint then checks the inputs' contents). With
+    ``detect``, lift's key is made of detect's (the frontend section, io, the set, refine's key)
+    instead of the set name, so a front-end knob change re-runs detect and everything after it."""
     from egograph.steps.track import tracker_sections
 
     io = to_dict(cfg.io)
     k = {"refine": outputs.digest("refine", to_dict(cfg.refine), io)[:12] if refine else None}
-    k["lift"] = outputs.digest("lift", cfg.lift.result_knobs(), io, detections, k["refine"])[:12]
+    # detect reads the poses (geometry proposals cast AHAT rays against the mesh): refine's key too
+    k["detect"] = outputs.digest("detect", detections, to_dict(cfg.frontend), io, k["refine"])[:12] if detect else None
+    lift_input = ["detect", k["detect"]] if detect else detections
+    k["lift"] = outputs.digest("lift", cfg.lift.result_knobs(), io, lift_input, k["refine"])[:12]
     sections = tracker_sections(cfg)
     for t in trackers:
         k[f"track/{t}"] = outputs.digest("track", t, sections, k["lift"])[:12]
@@ -176,6 +186,12 @@ def plan_run(dataset: str | Path, runs: str | Path, cfg, *, stages=None, tracker
     sequence, ConfigError for an unknown stage or tracker."""
     stages = resolve_stages(stages)
     trackers = resolve_trackers(trackers) if "track" in stages else []
+    from egograph.steps.detect import ENROLLMENTS
+
+    if "detect" in stages and detections not in ENROLLMENTS:
+        raise ConfigError(f"--detections {detections}: the detect stage produces one of {', '.join(ENROLLMENTS)} "
+                          "(its enrollment: svoe.txt's box or the MVPE photos); without --stages detect any set "
+                          "name or folder the recordings carry")
     dataset = Path(dataset).resolve()
     seqs = list_dataset(dataset)
     runs = Path(runs).resolve()
@@ -185,7 +201,7 @@ def plan_run(dataset: str | Path, runs: str | Path, cfg, *, stages=None, tracker
                                                    detections, cfg_digest)[:10]
     if not name or name in (LATEST, CACHE) or "/" in name or name.startswith("."):
         raise ConfigError(f"--name {name!r}: not a usable run name (not empty, {LATEST}, {CACHE}, hidden or a path)")
-    keys = stage_keys(cfg, detections, "refine" in stages, trackers)
+    keys = stage_keys(cfg, detections, "refine" in stages, trackers, "detect" in stages)
     tasks = []
     for seq in seqs:
         tasks += sequence_tasks(seq, runs / CACHE / seq.id, stages, trackers, keys, detections)
@@ -208,10 +224,16 @@ def sequence_tasks(seq: DatasetSequence, cache: Path, stages: list[str], tracker
         tasks.append(Task(refine_key, "refine", seq.id, None, out, "refined", spec={**base, "stage": "refine"}))
     pre = [refine_key] if refine_key else []
     base["poses"] = poses
+    lift_pre, lift_detections = list(pre), detections
+    if "detect" in stages:
+        dets = cache / f"detect-{detections}-{keys['detect']}"
+        tasks.append(Task(f"detect/{seq.id}", "detect", seq.id, None, dets, "detections", list(pre),
+                          {**base, "stage": "detect", "enroll": detections}))
+        lift_pre, lift_detections = [f"detect/{seq.id}"], str(dets)  # refine, if any, comes before detect
     if "lift" in stages:
         obs = cache / f"lift-{keys['lift']}.npz"
-        tasks.append(Task(f"lift/{seq.id}", "lift", seq.id, None, obs, "lifted.npz", list(pre),
-                          {**base, "stage": "lift", "detections": detections}))
+        tasks.append(Task(f"lift/{seq.id}", "lift", seq.id, None, obs, "lifted.npz", lift_pre,
+                          {**base, "stage": "lift", "detections": lift_detections}))
         for t in trackers if "track" in stages else []:
             res = cache / f"track-{t}-{keys[f'track/{t}']}"
             tasks.append(Task(f"track/{seq.id}/{t}", "track", seq.id, t, res, t, [f"lift/{seq.id}"],
@@ -303,6 +325,26 @@ def stage_refine(spec: dict) -> None:
     refine(_open({**spec, "poses": None}, cfg), cfg, spec["out"])
 
 
+def require_pv_images(rec) -> None:
+    """InputError naming the PV folder and the file patterns tried when no PV frame of ``rec`` has
+    an image (``detect`` reads nothing else of the frames' appearance)."""
+    look = next((lk for lk in getattr(rec, "lookups", []) if lk.what == "PV images"), None)
+    if look is None or look.found is not None:
+        return
+    folder = rec.seq_dir / "pv"
+    why = "folder missing" if not folder.is_dir() else f"no image of any of its {len(rec)} PV frames ({look.note})"
+    raise InputError(folder, f"detect needs the PV images: {why}; tried {', '.join(look.tried)}")
+
+
+def stage_detect(spec: dict) -> None:
+    from egograph.steps.detect import detect
+
+    cfg = _config(spec)
+    rec = _open(spec, cfg)
+    require_pv_images(rec)
+    detect(rec, spec["enroll"], cfg, spec["out"], progress=False)
+
+
 def stage_lift(spec: dict) -> None:
     from egograph.steps.lift import lift
 
@@ -362,7 +404,7 @@ def stage_regt(spec: dict) -> None:
     regt(rec, cfg, spec["out"])
 
 
-STAGE_FUNCTIONS = {"refine": stage_refine, "lift": stage_lift, "track": stage_track, "eval": stage_eval,
+STAGE_FUNCTIONS = {"refine": stage_refine, "detect": stage_detect, "lift": stage_lift, "track": stage_track, "eval": stage_eval,
                    "regt": stage_regt}
 
 
