@@ -44,6 +44,15 @@ def _add_rec_args(p: argparse.ArgumentParser) -> None:
                         "(sets io.strict)")
 
 
+def open_rec(args, cfg):
+    """The recording named by the arguments of :func:`_add_rec_args`, with ``--poses`` where the
+    command has it (refined poses in place of the recording's)."""
+    from egograph.steps.recording import open_recording
+
+    return open_recording(args.rec, cfg, calibration=args.calibration, annotations=args.annotations,
+                          sequence=args.sequence, poses=getattr(args, "poses", None))
+
+
 def _show_config(cfg, fmt: str = "table") -> None:
     if fmt == "yaml":
         from egograph.steps.outputs import config_yaml

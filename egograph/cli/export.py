@@ -30,16 +30,14 @@ def add_parser(sub, add_config_args, add_rec_args, default_config: Path) -> None
 
 
 def cmd_export(args) -> int:
-    from egograph.cli.common import _console, pipeline_config
+    from egograph.cli.common import _console, open_rec, pipeline_config
     from egograph.core.errors import InputError
     from egograph.steps.export import export
-    from egograph.steps.recording import open_recording
 
     if not Path(args.results).is_dir():  # before the recording is opened: a wrong path fails at once
         raise InputError(args.results, "results folder not found")
     cfg = pipeline_config(args)
-    rec = open_recording(args.rec, cfg, calibration=args.calibration, annotations=args.annotations,
-                         sequence=args.sequence)
+    rec = open_rec(args, cfg)
     out = args.out or Path(args.results).with_name(Path(args.results).name + ".export")
     result = export(rec, args.results, out, cfg, rrd=args.rrd, key_every=args.key_every, overwrite=args.overwrite)
     con = _console()

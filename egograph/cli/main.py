@@ -48,10 +48,9 @@ from egograph.core.errors import ConfigError, EgographError
 
 
 def _open(args, cfg):
-    from egograph.steps.recording import open_recording
+    from egograph.cli.common import open_rec
 
-    return open_recording(args.rec, cfg, calibration=args.calibration, annotations=args.annotations,
-                          sequence=args.sequence, poses=getattr(args, "poses", None))
+    return open_rec(args, cfg)
 
 
 def _add_poses_arg(p: argparse.ArgumentParser) -> None:

@@ -28,15 +28,13 @@ def add_parser(sub, add_config_args, add_rec_args, default_config: Path) -> None
 
 
 def cmd_plot(args) -> int:
-    from egograph.cli.common import _console, pipeline_config
+    from egograph.cli.common import _console, open_rec, pipeline_config
     from egograph.steps.plot import check_results, plot
-    from egograph.steps.recording import open_recording
 
     names = [n.strip() for n in args.names.split(",")] if args.names else None
     check_results(args.results, names)  # before the recording is opened: a wrong path fails at once
     cfg = pipeline_config(args)
-    rec = open_recording(args.rec, cfg, calibration=args.calibration, annotations=args.annotations,
-                         sequence=args.sequence)
+    rec = open_rec(args, cfg)
     out = args.out or Path(args.results[0]).with_name(Path(args.results[0]).name + ".plots")
     result = plot(rec, args.results, out, cfg, names=names, detections=args.detections)
     _console().print(f"wrote {len(result.images)} pictures and index.html -> {out}", soft_wrap=True)

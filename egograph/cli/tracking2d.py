@@ -37,12 +37,10 @@ def add_parsers(sub, add_config_args, add_rec_args, default_config: Path) -> Non
 
 
 def _open(args):
-    from egograph.cli.common import pipeline_config
-    from egograph.steps.recording import open_recording
+    from egograph.cli.common import open_rec, pipeline_config
 
     cfg = pipeline_config(args)
-    return cfg, open_recording(args.rec, cfg, calibration=args.calibration, annotations=args.annotations,
-                               sequence=args.sequence)
+    return cfg, open_rec(args, cfg)
 
 
 def cmd_sot(args) -> int:
