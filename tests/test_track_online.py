@@ -260,3 +260,28 @@ def test_a_glimpse_at_another_instances_stand_is_a_confusion(exclusion):
         assert min(inst1) == 500 and all(np.allclose(xyz, B, atol=0.01) for xyz in inst1.values())
     else:  # without the rule the confusion is answered from the second glimpse on
         assert min(inst1) <= 303 and np.linalg.norm(np.subtract(inst1[400], A)) < 0.05
+
+
+@pytest.mark.parametrize("after_s", [0.0, 1.0])
+def test_an_unseen_carry_is_guessed_put_down_where_last_held(after_s):
+    """Carried from A and out of sight from frame 260 on, put down where the hand last held it,
+    seen there again from frame 450: with ``put_down_after_s`` the answer from 1 s after the last
+    carried detection is that place; without, nothing until it is seen."""
+    rng = np.random.default_rng(3)
+    offset = np.array([0.3, -0.3, 0.2])
+    rows = [(f, 0, A + 0.02 * rng.standard_normal(3), 0.7) for f in range(30, CARRY[0], 3)]
+    rows += [(f, 0, camera_at(np.array([float(f)]))[0] + offset + 0.02 * rng.standard_normal(3), 0.7)
+             for f in range(CARRY[0], CARRY[1], 3)]
+    put = camera_at(np.array([float(CARRY[1] - 3)]))[0] + offset + [0.05, -0.1, 0.0]
+    rows += [(f, 0, put + 0.02 * rng.standard_normal(3), 0.7) for f in range(450, N, 3)]
+    cfg = GraphConfig(negative_evidence=False, put_down_after_s=after_s)
+    now, final, _ = live(make_obs(rows), cfg)
+    assert now == final
+    assert all(now[f] == [] for f in range(CARRY[1] + 5, CARRY[1] + 20))  # within the second: nothing
+    guessed = [f for f in range(CARRY[1] + 40, 450) if now[f]]
+    if after_s == 0:
+        assert guessed == []
+    else:
+        assert guessed == list(range(CARRY[1] + 40, 450))
+        assert all(np.linalg.norm(np.subtract(now[f][0][1], put)) < 0.25 for f in guessed)
+    assert now[460] and np.linalg.norm(np.subtract(now[460][0][1], put)) < 0.1  # seen again: there

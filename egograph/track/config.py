@@ -160,6 +160,10 @@ class GraphConfig(Checked):
     causal_exclusion: bool = knob(True, "causal mode: a new place of one instance within exclusion_radius_m of "
                                          "another instance's current answer with more inliers is taken for a "
                                          "look-alike confusion and not answered (the causal form of the offline rule)")
+    put_down_after_s: float = knob(2.0, "causal mode: a carried object unseen for this long is answered where the hand "
+                                        "last held it (put down near there), at low confidence, until seen again or "
+                                        "depth shows the place empty; 0: nothing until seen again, s", min=0.0)
+    put_down_sigma_m: float = knob(0.3, "causal mode: position sigma of that put-down guess, metres", gt=0.0)
     online_max_rows: int = knob(300, "causal mode: newest detections of the trailing segment kept per instance "
                                      "(bounds memory and time per frame)", min=1)
     online_window_chunks: int = knob(40, "causal mode: each instance's iSAM2 is restarted after this many chunks, "

@@ -122,6 +122,7 @@ class _Instance:
     last_negative_check: int = -1
     carry: deque = field(default_factory=lambda: deque(maxlen=6))  # (world, camera) of the last carried rows
     in_carry: bool = False              # the answer is nothing because the object is carried
+    carry_ticks: int = 0                # timestamp of the newest carried detection
     answered: bool = False              # some hypothesis has been held (the first one needs first_min_observations)
 
 
@@ -222,6 +223,9 @@ class OnlineTracker:
             for inst in np.unique(obs.instance[keep]):
                 sel = np.flatnonzero(keep & (obs.instance == inst))
                 self._observe(int(inst), frame, int(timestamp), obs, sel)
+        if self.cfg.put_down_after_s > 0:
+            for i, st in self.inst.items():
+                self._guess_put_down(i, st, frame, int(timestamp))
         if self.negative is not None:
             for i, st in self.inst.items():
                 self._check_negative(i, st, frame)
@@ -334,6 +338,7 @@ class OnlineTracker:
                 self._switch(inst, st, None, seg_start)  # carried: nothing from its first detection
                 st.in_carry = True
             st.carry.extend(zip(world[-len(world):], camera[-len(camera):]))
+            st.carry_ticks = int(ticks[-1])
             return
         if near and st.seg_first_row >= st.chunk_first_row:
             return  # seen from hand range within one chunk: maybe in hand; wait for a motion-break test
@@ -400,6 +405,23 @@ class OnlineTracker:
         while st.runs and st.runs[-1].start >= start:
             st.runs.pop()
         st.runs.append(_Run(start, hyp))
+
+    def _guess_put_down(self, inst: int, st: _Instance, frame: int, ts: int) -> None:
+        """A carry unseen for ``put_down_after_s`` seconds: answer where the hand last held it (the
+        object is put down near where it was last seen carried), as a low-confidence last-seen
+        place, until it is seen again or depth shows that place empty."""
+        if not (st.in_carry and st.held is None and st.carry):
+            return
+        if ts - st.carry_ticks < self.cfg.put_down_after_s * TICKS_PER_SECOND:
+            return
+        world = np.array([w for w, _ in st.carry])[-3:]
+        xyz = np.median(world, axis=0)
+        sigma = self.cfg.put_down_sigma_m
+        hyp = Hypothesis(inst, LAST_SEEN, xyz, sigma**2 * np.eye(3), 0.1, 1, frame, frame, st.carry_ticks,
+                         st.carry_ticks, st.segment_id, st.segment_id)
+        if self.cfg.causal_exclusion and self._claimed(inst, xyz, 1):
+            return
+        self._switch(inst, st, hyp, None)
 
     def _claimed(self, inst: int, xyz: np.ndarray, n_inliers: int) -> bool:
         """Whether another instance's current answer lies within ``exclusion_radius_m`` of ``xyz``
