@@ -18,6 +18,9 @@ per instance and frame is the current best hypothesis:
 * *nothing* while the object is carried (the segment moves with the head, or a still stand
   seen from close by has no support under it), and from the frame where depth shows the
   held place empty (negative evidence, ``graph.negative``) until it is seen again.
+* once a carry has been out of sight for ``graph.put_down_after_s``, the place where the hand
+  last held it (put down near there; low confidence), until it is seen again or depth shows
+  that place empty.
 
 Strictly causal: the answer for frame t uses the observations (and depth frames) of frames
 <= t only. With a lag S (``lag_s`` seconds) the answer for frame t is emitted once a frame at
