@@ -55,7 +55,7 @@ def embedded(tmp_path_factory):
     old = os.environ.get("EGOGRAPH_CACHE")
     os.environ["EGOGRAPH_CACHE"] = str(cache)
     try:
-        enc = load_encoder(FrontendConfig())
+        enc = load_encoder(FrontendConfig(input_size=effnet.INPUT_SIZE))   # the converter checked where it was trained
     finally:
         if old is None:
             os.environ.pop("EGOGRAPH_CACHE")
@@ -99,6 +99,11 @@ def test_embedded_encoder_imagenet_top5_on_real_photos(embedded):
     finally:
         os.environ.pop("EGOGRAPH_CACHE") if old is None else os.environ.__setitem__("EGOGRAPH_CACHE", old)
     assert enc.path.stat().st_mtime_ns == mtime
+    # the faster side of the embedded encoder, 160 px, still knows the photos
+    small = OnnxEncoder(enc.path, FrontendConfig(), preprocess=Preprocess(160))
+    assert MILITARY_UNIFORM in np.argsort(-small.run_raw([hopper], "logits")[0])[:5]
+    assert all({LAKESIDE, BOATHOUSE, PALACE, CASTLE} & set(np.argsort(-row)[:5].tolist())
+               for row in small.run_raw(crops, "logits"))
 
 
 def test_torch_legacy_reader_shapes_and_strides():
@@ -170,6 +175,18 @@ def test_encoder_by_path_with_config(tmp_path):
     assert np.allclose(enc.embed(crops[:1]), e[:1], atol=1e-5)       # batching does not change embeddings
     fixed = OnnxEncoder(tiny_encoder(tmp_path / "b1.onnx", side=32, batch=1), cfg)
     assert np.allclose(fixed.embed(crops), e, atol=1e-5)             # batch-1 models run crop by crop
+
+
+def test_input_size_zero_takes_the_models_side(tmp_path, monkeypatch):
+    from egograph.frontend import encoder as encoder_mod
+
+    assert OnnxEncoder(tiny_encoder(tmp_path / "f.onnx", side=48), FrontendConfig()).pre.size == 48
+    assert OnnxEncoder(tiny_encoder(tmp_path / "s.onnx"), FrontendConfig()).pre.size == encoder_mod.DEFAULT_SIDE == 224
+    assert OnnxEncoder(tiny_encoder(tmp_path / "s.onnx"), FrontendConfig(input_size=40)).pre.size == 40
+    # the embedded encoder (any side) runs at EMBEDDED_SIDE unless input_size says otherwise
+    monkeypatch.setattr(effnet, "embedded_model_path", lambda: tiny_encoder(tmp_path / "e.onnx"))
+    assert load_encoder(FrontendConfig()).pre.size == encoder_mod.EMBEDDED_SIDE == 224
+    assert load_encoder(FrontendConfig(input_size=160)).pre.size == 160
 
 
 def test_encoder_validation_names_the_file(tmp_path):
@@ -262,3 +279,23 @@ def test_autocrop_cuts_a_photo_to_its_object():
     assert autocrop(photo, 0.0).shape == (20, 20, 3)
     assert autocrop(photo, 0.1).shape == (24, 24, 3)
     assert autocrop(np.full((96, 96, 3), 128, np.uint8), 0.1).shape == (96, 96, 3)   # nothing on it: as is
+
+
+def test_read_pv_missing_or_unreadable_is_none_without_warning(tmp_path):
+    import warnings
+
+    from egograph.steps.detect import read_pv
+
+    good = np.zeros((6, 8, 3), np.uint8)
+    good[..., 2] = 255                                               # blue: written as BGR, read back as RGB
+    cv2.imwrite(str(tmp_path / "0.png"), good[..., ::-1])
+    (tmp_path / "1.png").write_bytes(b"not a png")
+
+    class Rec:
+        def pv_path(self, i):
+            return tmp_path / f"{i}.png"
+
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")           # read_pv runs in a thread: the caller names bad frames
+        assert np.array_equal(read_pv(Rec(), 0), good)
+        assert read_pv(Rec(), 1) is None and read_pv(Rec(), 2) is None

@@ -166,7 +166,7 @@ class GeometryProposals:
             for r_med in ranges:
                 r = wrapped + (r_med - np.median(wrapped))   # keep the segment's range spread
                 cam = self.dirs[vs, us] * r[:, None]
-                lo3, hi3 = np.percentile(cam, 5, axis=0), np.percentile(cam, 95, axis=0)
+                lo3, hi3 = np.percentile(cam, [5, 95], axis=0)      # one call: most of the time per segment
                 if not self.cfg.min_object_m <= float(np.max(hi3 - lo3)) <= self.cfg.max_object_m:
                     continue   # furniture the mesh lacks, or range speckle: not a small object
                 pv_cam = cam @ to_pv[:3, :3] + to_pv[3, :3]
@@ -174,7 +174,7 @@ class GeometryProposals:
                 uv = uv[depth > 0.05]
                 if len(uv) < self.min_px:
                     continue
-                lo, hi = np.percentile(uv, 2, axis=0), np.percentile(uv, 98, axis=0)
+                lo, hi = np.percentile(uv, [2, 98], axis=0)
                 pad = self.cfg.box_pad_px
                 props.append(Proposal((lo[0] - pad, lo[1] - pad, hi[0] + pad, hi[1] + pad), "geometry",
                                       conf=float(min(1.0, len(vs) * self.cfg.depth_stride ** 2 / 50.0))))

@@ -29,7 +29,7 @@ from egograph.steps.recording import labels as read_labels
 from egograph.steps.recording import require_annotations
 
 ENROLLMENTS = ("svoe", "mvpe")
-STAGES = ("read", "proposals", "crops", "encoder", "matching")
+STAGES = ("read", "proposals", "crops", "encoder", "matching", "write")
 
 
 @dataclass
@@ -214,6 +214,30 @@ class FrameDetector:
         return sorted(rows)
 
 
+def read_pv(rec: Recording, i: int) -> np.ndarray | None:
+    """PV frame ``i`` as RGB uint8, or None when missing or unreadable (counted and named by the
+    caller in one warning, so none here: this runs in a thread)."""
+    import cv2
+
+    p = rec.pv_path(i)
+    img = cv2.imread(str(p), cv2.IMREAD_COLOR) if p.is_file() else None
+    return None if img is None else cv2.cvtColor(img, cv2.COLOR_BGR2RGB)
+
+
+def detect_frame(rec: Recording, i: int, ts: int, rgb: np.ndarray | None, run: "FrameDetector",
+                 guide_world, report: DetectReport, files: dict[str, str]) -> None:
+    """One PV frame's detection file into ``files`` (empty, and the image counted as skipped, without it)."""
+    if rgb is None:
+        report.skipped_frames.append(str(rec.pv_path(i)))
+        files[f"{ts}.txt"] = ""
+        return
+    rows = run(i, rgb, project_guides(rec, guide_world, i))
+    report.frames += 1
+    for inst, *_ in rows:
+        report.detections[inst] = report.detections.get(inst, 0) + 1
+    files[f"{ts}.txt"] = frame_text(rows)
+
+
 def encoder_id(cfg, encoder_path: str | Path | None) -> dict:
     """What the detections depend on of the encoder: its file's size and a digest of its first MB."""
     path = encoder_path or cfg.frontend.encoder
@@ -269,22 +293,20 @@ def detect(rec: Recording, enroll: str, cfg, out: str | Path, *, encoder: str | 
     sources = proposal_sources(rec, fcfg, source_name)
     run = FrameDetector(rec, fcfg, enc, enrollment, sources, report)
     files: dict[str, str] = {}
-    for i in tqdm(range(len(rec)), desc=f"detect ({enroll})", unit="frame", disable=not progress, mininterval=1.0):
-        ts = int(rec.timestamps[i])
-        t0 = time.perf_counter()
-        with warnings.catch_warnings():
-            warnings.simplefilter("ignore")   # an unreadable image is counted and named in one warning below
-            rgb = rec.rgb(i)
-        report.seconds["read"] += time.perf_counter() - t0
-        if rgb is None:
-            report.skipped_frames.append(str(rec.pv_path(i)))
-            files[f"{ts}.txt"] = ""
-            continue
-        rows = run(i, rgb, project_guides(rec, guide_world, i))
-        report.frames += 1
-        for inst, *_ in rows:
-            report.detections[inst] = report.detections.get(inst, 0) + 1
-        files[f"{ts}.txt"] = frame_text(rows)
+    from concurrent.futures import ThreadPoolExecutor
+
+    # the next PV image is decoded in a thread (OpenCV releases the GIL) while this frame's
+    # proposals and encoder run: "read" is only the time spent waiting for it
+    with ThreadPoolExecutor(1) as pool:
+        ahead = pool.submit(read_pv, rec, 0)
+        for i in tqdm(range(len(rec)), desc=f"detect ({enroll})", unit="frame", disable=not progress, mininterval=1.0):
+            ts = int(rec.timestamps[i])
+            t0 = time.perf_counter()
+            rgb = ahead.result()
+            if i + 1 < len(rec):
+                ahead = pool.submit(read_pv, rec, i + 1)
+            report.seconds["read"] += time.perf_counter() - t0
+            detect_frame(rec, i, ts, rgb, run, guide_world, report, files)
     if report.frames == 0:
         raise InputError(rec.seq_dir / "pv", f"none of the {len(rec)} PV images could be read (e.g. "
                                              f"{report.skipped_frames[0] if report.skipped_frames else '-'})")
@@ -292,8 +314,10 @@ def detect(rec: Recording, enroll: str, cfg, out: str | Path, *, encoder: str | 
         report_problem(rec.strict, report.skipped_frames[0],
                        f"{len(report.skipped_frames)} of {len(rec)} PV images missing or unreadable (this one "
                        "first); their frames get empty detection files")
-    files.update(outputs.run_files(record, cfg))
     from egograph.io.textio import write_text_dir
 
+    t0 = time.perf_counter()
+    files.update(outputs.run_files(record, cfg))
     write_text_dir(out, files)
+    report.seconds["write"] += time.perf_counter() - t0
     return report
