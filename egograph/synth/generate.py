@@ -23,7 +23,7 @@ from egograph.core.types import Box, Detection
 from egograph.geometry.hl2ss import invert_rigid, pv_project, transform_points
 from egograph.io.annotations import Annotations, CenterAnnotation, MotionInterval, SvoeEnrollment, save_annotations
 from egograph.io.atomic import atomic_dir, atomic_write_text
-from egograph.io.calibration import PV_SHAPE, write_ahat_calibration, write_pv_calibration
+from egograph.io.calibration import PV_SHAPE, PvCalibration, write_ahat_calibration, write_pv_calibration
 from egograph.io.detections import write_detection_dir
 from egograph.io.png import write_png
 from egograph.io.poses import write_pose_json
@@ -31,6 +31,8 @@ from egograph.synth.config import SynthConfig
 from egograph.synth.frontend import FRONTEND_REVISION, SOURCE_TRUE, FrameView, FrontEnd
 from egograph.synth.scene import Scene, box_mesh, hololens_mesh, make_scene
 from egograph.synth.sensors import (
+    Pinhole,
+    RaycastRenderer,
     Textures,
     ahat_camera_rays,
     build_raycasting_scene,
@@ -40,7 +42,6 @@ from egograph.synth.sensors import (
     pose_errors,
     pv_camera_rays,
     room_lamps,
-    shade_hits,
     simulate_ahat,
 )
 from egograph.synth.trajectory import Trajectory, make_trajectory
@@ -134,13 +135,14 @@ def _clutter_spots(rng: np.random.Generator, scene: Scene, per_instance: int) ->
     return out
 
 
-def open_pv_renderer(cfg: SynthConfig, scene: Scene, textures: Textures, lamps: np.ndarray | None, camera,
-                     background: float = 0.0):
-    """The rasteriser of ``pv.renderer=gl`` for ``camera`` (a PvCalibration or render_gl.Pinhole), or
-    None for ``raycast``. No OpenGL -> ConfigError saying what to install (never a silent switch:
-    the two renderers do not give the same bytes)."""
+def open_pv_renderer(cfg: SynthConfig, scene: Scene, textures: Textures, lamps: np.ndarray | None,
+                     camera: PvCalibration | Pinhole, background: float = 0.0):
+    """The colour renderer of ``pv.renderer`` for ``camera``: the OpenGL rasteriser (``gl``) or the
+    ray caster (``raycast``), both with ``render(cam_to_world, obj_pos, obj_yaw, hand, only=None)``
+    and ``release()``. No OpenGL -> ConfigError saying what to install (never a silent switch: the
+    two renderers do not give the same bytes)."""
     if cfg.pv.renderer != "gl":
-        return None
+        return RaycastRenderer(scene, textures, lamps, camera, background)
     from egograph.synth.render_gl import GlUnavailable, PvRenderer
 
     try:
@@ -152,22 +154,14 @@ def open_pv_renderer(cfg: SynthConfig, scene: Scene, textures: Textures, lamps: 
 def render_mvpe_photos(scene: Scene, textures: Textures, size: int, cfg: SynthConfig) -> dict[str, list[np.ndarray]]:
     """25 RGB photos per instance (12 at 30 deg, 12 at 60 deg elevation, 1 top-down) on a grey
     backdrop, by ``cfg.pv.renderer``."""
-    from egograph.synth.render_gl import Pinhole
-
     photos: dict[str, list[np.ndarray]] = {}
     f = size * 1.2
-    backdrop = 0.55
-    gl = open_pv_renderer(cfg, scene, textures, None, Pinhole((size, size), (f, f), (size / 2, size / 2)), backdrop)
-    if gl is None:
-        u, v = np.meshgrid(np.arange(size) + 0.5, np.arange(size) + 0.5)
-        dirs_cam = np.stack([(u - size / 2) / f, -(v - size / 2) / f, -np.ones_like(u)], -1).reshape(-1, 3)
+    renderer = open_pv_renderer(cfg, scene, textures, None, Pinhole((size, size), (f, f), (size / 2, size / 2)), 0.55)
     views = [(30.0, a) for a in range(0, 360, 30)] + [(60.0, a + 15) for a in range(0, 360, 30)] + [(89.0, 0.0)]
     for k, obj in enumerate(scene.objects):
-        pos = np.zeros((len(scene.objects), 3)) + 1e3
+        pos = np.zeros((len(scene.objects), 3)) + 1e3  # the others far out of view
         pos[k] = 0.0
         yaw = np.zeros(len(scene.objects))
-        if gl is None:
-            geom = build_raycasting_scene(scene, pos, yaw, None, include_static=False)
         dist = 2.2 * float(np.linalg.norm(obj.size)) / 2 / np.tan(np.arctan(size / 2 / f))
         imgs = []
         for elev, azim in views:
@@ -178,20 +172,12 @@ def render_mvpe_photos(scene: Scene, textures: Textures, size: int, cfg: SynthCo
             right = np.cross(fwd, up0)
             right /= np.linalg.norm(right)
             up = np.cross(right, fwd)
-            rot = np.stack([right, up, -fwd])  # rows: camera axes in world (row-vector rotation)
-            if gl is not None:
-                cam_to_world = np.eye(4)
-                cam_to_world[:3, :3], cam_to_world[3, :3] = rot, eye
-                imgs.append(gl.render(cam_to_world, pos, yaw, None, only=k))
-                continue
-            dirs = dirs_cam @ rot
-            hit = cast(geom, eye, dirs)
-            col = shade_hits(scene, textures, hit, eye, dirs, pos, yaw)
-            col[~np.isfinite(hit["t"])] = backdrop
-            imgs.append((col.reshape(size, size, 3) * 255).astype(np.uint8))
+            cam_to_world = np.eye(4)
+            cam_to_world[:3, :3] = np.stack([right, up, -fwd])  # rows: camera axes in world (row-vector rotation)
+            cam_to_world[3, :3] = eye
+            imgs.append(renderer.render(cam_to_world, pos, yaw, None, only=k))
         photos[obj.name] = imgs
-    if gl is not None:
-        gl.release()
+    renderer.release()
     return photos
 
 
@@ -285,7 +271,6 @@ def generate(out: str | Path, cfg: SynthConfig, seed: int, progress: bool = True
     ray_valid = headset.ray_valid.reshape(-1)
     ds = cfg.pv.visibility_downsample
     vis_dirs, vis_shape = pv_camera_rays(pv_cal, ds)
-    rgb_dirs, rgb_shape = pv_camera_rays(pv_cal, 1) if cfg.pv.rgb else (None, None)
     # Enrollment photos first: they need nothing from the frames, and a missing OpenGL fails here,
     # before any frame is rendered.
     photos = render_mvpe_photos(scene, textures, cfg.mvpe_photo_size, cfg)
@@ -358,11 +343,6 @@ def generate(out: str | Path, cfg: SynthConfig, seed: int, progress: bool = True
             write_png(seq_dir / "depth_ahat" / f"{ts[i]}.png", raw, 1)
             if pv_renderer is not None:
                 img = pv_renderer.render(pose, obj_pos, obj_yaw, (hand, hand_yaw) if hand_on else None)
-            elif cfg.pv.rgb:  # pv.renderer=raycast: the reference the rasteriser is tested against
-                d = rgb_dirs @ pose[:3, :3]
-                col = shade_hits(scene, textures, cast(geom, origin, d), origin, d, obj_pos, obj_yaw, lamps)
-                img = (col.reshape(rgb_shape + (3,)) * 255).astype(np.uint8)
-            if cfg.pv.rgb:
                 write_png(seq_dir / "pv" / f"{ts[i]}.png", img, cfg.pv.png_compression)
 
         if pv_renderer is not None:

@@ -16,18 +16,21 @@ caster's and as :func:`egograph.io.png.write_png` stores them.
 
 from __future__ import annotations
 
-from dataclasses import dataclass
-
 import numpy as np
 
 from egograph.io.calibration import PvCalibration
 from egograph.synth.scene import Scene
 from egograph.synth.sensors import (
+    AMBIENT,
+    BAND_DIM,
     DETAIL_HALF_WIDTH,
     HAND_COLOR,
+    LAMP_GAIN,
     LAMP_REACH,
     LIGHT,
+    SKY_GAIN,
     STATIC_TEXTURE_SHIFT,
+    Pinhole,
     Textures,
     hand_mesh,
 )
@@ -69,7 +72,11 @@ uniform sampler3D tint;      // same layout, RGB
 uniform vec3 inv_scale;      // 1 / Textures.SCALES
 uniform vec3 weight;         // Textures.WEIGHTS
 uniform float tint_inv_scale;
+uniform float tint_shift;
+uniform float contrast;
+uniform float band_dim;
 uniform vec3 light;
+uniform vec3 gains;          // ambient, sky, lamp
 uniform vec3 lamps[LAMP_SLOTS];
 uniform float inv_reach2;
 uniform float band_y;
@@ -86,14 +93,14 @@ float lat(float s) {
 }
 void main() {
     float v = weight.x * lat(inv_scale.x) + weight.y * lat(inv_scale.y) + weight.z * lat(inv_scale.z);
-    ivec3 qt = ivec3(floor((v_tex + vec3(0.37)) * tint_inv_scale)) & 63;
-    vec3 col = clamp(texelFetch(tint, qt.zyx, 0).rgb * (v * 1.3) * v_base, 0.0, 1.0);
-    if (abs(v_local_y - band_y) < band_half) col = col.bgr * 0.8;
-    float lam = abs(dot(v_normal, light)) * 0.35 + 0.3;
+    ivec3 qt = ivec3(floor((v_tex + vec3(tint_shift)) * tint_inv_scale)) & 63;
+    vec3 col = clamp(texelFetch(tint, qt.zyx, 0).rgb * (v * contrast) * v_base, 0.0, 1.0);
+    if (abs(v_local_y - band_y) < band_half) col = col.bgr * band_dim;
+    float lam = abs(dot(v_normal, light)) * gains.y + gains.x;
     for (int i = 0; i < N_LAMPS; i++) {  // N_LAMPS: a constant, so the compiler unrolls the loop
         vec3 to = lamps[i] - v_world;
         float d2 = dot(to, to) + 1e-6;
-        lam += 0.6 * abs(dot(v_normal, to)) * inversesqrt(d2) / (1.0 + d2 * inv_reach2);
+        lam += gains.z * abs(dot(v_normal, to)) * inversesqrt(d2) / (1.0 + d2 * inv_reach2);
     }
     col = clamp(col * lam, 0.0, 1.0);
     // The ray caster truncates (x * 255 -> uint8); the framebuffer rounds: hand it the truncated value.
@@ -134,26 +141,12 @@ def gl_context():
         raise GlUnavailable(f"no EGL OpenGL 3.3 context ({e}); on Debian: apt-get install libegl1 libgl1-mesa-dri") from None
 
 
-@dataclass(frozen=True)
-class Pinhole:
-    """A pinhole camera looking down -z, y up (the PV convention): image rows and columns, focal
-    lengths and principal point in pixels (pixel centres at integer + 0.5)."""
-
-    shape: tuple[int, int]
-    focal: tuple[float, float]
-    principal: tuple[float, float]
-
-    @classmethod
-    def of(cls, calib: PvCalibration) -> "Pinhole":
-        return cls(tuple(calib.shape), tuple(map(float, calib.focal_length)), tuple(map(float, calib.principal_point)))
-
-
-def projection(cam: Pinhole, near: float = NEAR_M, far: float = FAR_M) -> np.ndarray:
+def projection(cam: PvCalibration | Pinhole, near: float = NEAR_M, far: float = FAR_M) -> np.ndarray:
     """OpenGL clip matrix (4, 4), column-vector, of the pinhole; image row 0 at the framebuffer's
     first row (y flipped), so ``glReadPixels`` returns the image top row first."""
     h, w = cam.shape
-    fx, fy = cam.focal
-    cx, cy = cam.principal
+    fx, fy = cam.focal_length
+    cx, cy = cam.principal_point
     return np.array([[2 * fx / w, 0.0, 1 - 2 * cx / w, 0.0],
                      [0.0, -2 * fy / h, -(2 * cy / h - 1), 0.0],
                      [0.0, 0.0, -(far + near) / (far - near), -2 * far * near / (far - near)],
@@ -180,12 +173,12 @@ class PvRenderer:
     def __init__(self, scene: Scene, textures: Textures, lamps: np.ndarray | None, camera: PvCalibration | Pinhole,
                  background: float = 0.0):
         """``lamps``: world positions (L, 3) of the room's lamps, or None (sky light only);
-        ``background``: grey level in [0, 1] where nothing is hit."""
+        ``camera``: the PV calibration or any pinhole; ``background``: grey level in [0, 1] where
+        nothing is hit."""
         import moderngl
 
-        cam = camera if isinstance(camera, Pinhole) else Pinhole.of(camera)
         self.scene = scene
-        self.shape = cam.shape
+        self.shape = tuple(camera.shape)
         self.background = float(background)
         self.ctx = gl_context()
         ctx = self.ctx
@@ -207,13 +200,17 @@ class PvRenderer:
         self._set("tint", 1)
         self._set("inv_scale", tuple(float(np.float32(1.0 / s)) for s in Textures.SCALES))
         self._set("weight", tuple(float(w) for w in Textures.WEIGHTS))
-        self._set("tint_inv_scale", float(np.float32(1.0 / 0.3)))
+        self._set("tint_inv_scale", float(np.float32(1.0 / Textures.TINT_SCALE)))
+        self._set("tint_shift", Textures.TINT_SHIFT)
+        self._set("contrast", Textures.CONTRAST)
+        self._set("band_dim", BAND_DIM)
+        self._set("gains", (AMBIENT, SKY_GAIN, LAMP_GAIN))
         self._set("light", tuple(float(x) for x in LIGHT))
         self._set("inv_reach2", 1.0 / LAMP_REACH ** 2)
         self._set("band_half", DETAIL_HALF_WIDTH)
         if len(lamps) and "lamps" in self.prog:
             self.prog["lamps"].write(lamps.astype(np.float32).tobytes())
-        self.proj = projection(cam)
+        self.proj = projection(camera)
         self.static = self._vaos(ctx.buffer(_flat_triangles(scene.static_vertices, scene.static_triangles,
                                                             scene.static_tri_color).tobytes()))
         self.objects = [self._vaos(ctx.buffer(_flat_triangles(o.vertices, o.triangles, o.color).tobytes()))

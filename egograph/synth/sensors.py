@@ -248,6 +248,9 @@ class Textures:
 
     SCALES = (0.2, 0.05, 0.015)
     WEIGHTS = (0.35, 0.4, 0.25)
+    CONTRAST = 1.3               # gain on the summed lattice value
+    TINT_SCALE = 0.3             # lattice spacing of the colour tint, metres
+    TINT_SHIFT = 0.37            # the tint's lattice is shifted by this much against the others, metres
 
     def __init__(self, rng: np.random.Generator, size: int = 64):
         self.size = size
@@ -266,13 +269,15 @@ class Textures:
         v = np.zeros(len(p), np.float32)
         for scale, w in zip(self.SCALES, self.WEIGHTS):
             v += np.float32(w) * self.lattice[self._index(p, scale)]
-        tint = self.tint[self._index(p + np.float32(0.37), 0.3)]
-        tint *= (v * np.float32(1.3))[:, None]
+        tint = self.tint[self._index(p + np.float32(self.TINT_SHIFT), self.TINT_SCALE)]
+        tint *= (v * np.float32(self.CONTRAST))[:, None]
         tint *= base
         return np.clip(tint, 0, 1, out=tint)
 
 
 LIGHT = np.array([0.3, 0.85, 0.4]) / np.linalg.norm([0.3, 0.85, 0.4])
+AMBIENT, SKY_GAIN, LAMP_GAIN = 0.3, 0.35, 0.6  # light = ambient + sky * |n.LIGHT| + lamp terms
+BAND_DIM = 0.8             # the twin's band: channels reversed and dimmed by this factor
 LAMP_HEIGHT = 0.35  # lamps hang this far below the ceiling, metres
 LAMP_REACH = 2.0    # distance at which a lamp's light falls to half, metres
 DETAIL_HALF_WIDTH = 0.008  # half width of the band that tells a look-alike twin apart, metres
@@ -321,22 +326,33 @@ def shade_hits(scene: Scene, textures: Textures, hit: dict, origin: np.ndarray, 
                 detail.append(m[np.abs(local[:, 1] - np.float32(0.2 * obj.size[1])) < DETAIL_HALF_WIDTH])
     col = textures.shade(tex_pts, lut[cid])
     for m in detail:
-        col[m] = col[m][:, ::-1] * np.float32(0.8)  # the band: channels swapped, a little darker
+        col[m] = col[m][:, ::-1] * np.float32(BAND_DIM)  # the band: channels swapped, a little darker
     normal = hit["normal"]
     lam = np.abs(normal @ LIGHT.astype(np.float32))
-    lam *= np.float32(0.35)
-    lam += np.float32(0.3)
+    lam *= np.float32(SKY_GAIN)
+    lam += np.float32(AMBIENT)
     if lamps is not None:
         for lamp in np.asarray(lamps, np.float32):
             to = lamp - world
             d2 = np.einsum("ij,ij->i", to, to) + np.float32(1e-6)
-            lam += np.float32(0.6) * np.abs(np.einsum("ij,ij->i", normal, to)) / np.sqrt(d2) \
+            lam += np.float32(LAMP_GAIN) * np.abs(np.einsum("ij,ij->i", normal, to)) / np.sqrt(d2) \
                 / (np.float32(1.0) + d2 / np.float32(LAMP_REACH ** 2))
     col *= lam[:, None]
     return np.clip(col, 0, 1, out=col)
 
 
-def pv_camera_rays(calib: PvCalibration, downsample: int = 1) -> tuple[np.ndarray, tuple[int, int]]:
+@dataclass(frozen=True)
+class Pinhole:
+    """A pinhole camera looking down -z, y up (the PV convention): image rows and columns, focal
+    lengths and principal point in pixels (pixel centres at integer + 0.5). A PvCalibration has the
+    same three fields."""
+
+    shape: tuple[int, int]
+    focal_length: tuple[float, float]
+    principal_point: tuple[float, float]
+
+
+def pv_camera_rays(calib: PvCalibration | Pinhole, downsample: int = 1) -> tuple[np.ndarray, tuple[int, int]]:
     """PV-camera-frame ray directions (M, 3) with z = -1 (so ``t_hit`` is depth), row-major, and the grid shape."""
     h, w = calib.shape
     hs, ws = h // downsample, w // downsample
@@ -345,6 +361,33 @@ def pv_camera_rays(calib: PvCalibration, downsample: int = 1) -> tuple[np.ndarra
     cx, cy = calib.principal_point
     dirs = np.stack([(u - cx) / fx, -(v - cy) / fy, -np.ones_like(u)], -1).reshape(-1, 3)
     return dirs, (hs, ws)
+
+
+class RaycastRenderer:
+    """Colour frames by ray casting (Open3D) and :func:`shade_hits`: the reference the OpenGL
+    rasteriser (:class:`egograph.synth.render_gl.PvRenderer`) is tested against, with its interface."""
+
+    def __init__(self, scene: Scene, textures: Textures, lamps: np.ndarray | None, camera: PvCalibration | Pinhole,
+                 background: float = 0.0):
+        self.scene, self.textures, self.lamps, self.background = scene, textures, lamps, float(background)
+        self.dirs_cam, self.shape = pv_camera_rays(camera, 1)
+
+    def render(self, cam_to_world: np.ndarray, obj_pos: np.ndarray, obj_yaw: np.ndarray,
+               hand: tuple[np.ndarray, float] | None, only: int | None = None) -> np.ndarray:
+        """RGB uint8 image (H, W, 3); arguments as :meth:`egograph.synth.render_gl.PvRenderer.render`
+        (``only``: no room and no hand; the caller keeps the other instances out of view)."""
+        geom = build_raycasting_scene(self.scene, obj_pos, obj_yaw, hand if only is None else None,
+                                      include_static=only is None)
+        origin = cam_to_world[3, :3]
+        dirs = self.dirs_cam @ cam_to_world[:3, :3]
+        hit = cast(geom, origin, dirs)
+        col = shade_hits(self.scene, self.textures, hit, origin, dirs, obj_pos, obj_yaw, self.lamps)
+        if self.background:
+            col[~np.isfinite(hit["t"])] = self.background
+        return (col.reshape(self.shape + (3,)) * 255).astype(np.uint8)
+
+    def release(self) -> None:
+        pass
 
 
 # ---------------------------------------------------------------- reported poses
