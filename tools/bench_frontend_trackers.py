@@ -81,10 +81,11 @@ def main() -> None:
     base = load_config(EgographConfig, default_config(), args.overrides)
     pooled: dict = {}
     shares: dict = {}
-    t_detect = 0.0
+    t_detect, frames = 0.0, 0
     for root in roots:
         rec = open_recording(root, base)
         for det_set in args.sets:
+            frames += len(rec)
             out = args.cache / "detect" / root.name / det_set
             t = time.perf_counter()
             detect(rec, det_set, base, out, progress=True)
@@ -108,7 +109,6 @@ def main() -> None:
                         result = track_step(rec, tracker, obs, cfg)
                     key = (source, det_set, label)
                     pooled[key] = pooled.get(key, Counts(THRESHOLDS)) + evaluate(rec, result).total
-    frames = sum(len(open_recording(r, base)) for r in roots) * len(args.sets)
     print(f"\nRGB recordings: seeds {', '.join(map(str, args.seeds))} x {args.frames} frames; "
           f"detect {frames / max(t_detect, 1e-9):.1f} frames/s over {frames} frames\n")
     print("| source | set | true / all detections | tracker | P@0.25 | P@1.5 | R@0.25 | R@1.5 | L2 (m) |")
