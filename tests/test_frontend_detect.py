@@ -17,11 +17,10 @@ pytest.importorskip("open3d")
 from egograph.core.config import load_config  # noqa: E402
 from egograph.core.errors import InputError  # noqa: E402
 from egograph.core.resources import default_config  # noqa: E402
-from egograph.frontend.proposals import iou  # noqa: E402
-from egograph.io.detections import read_detection_dir  # noqa: E402
 from egograph.steps.detect import detect  # noqa: E402
 from egograph.steps.recording import open_recording  # noqa: E402
 from egograph.steps.settings import EgographConfig  # noqa: E402
+from egograph.synth.truth import detections_against_truth, own_column  # noqa: E402
 from tests.test_frontend import tiny_encoder  # noqa: E402
 
 pytestmark = pytest.mark.slow
@@ -41,17 +40,11 @@ def cfg_for(**frontend):
 def recall_and_false(rec, det_dir) -> tuple[float, int, int]:
     """(share of visible instance-frames with a true detection, true, false detections)."""
     with np.load(rec.synth_gt_dir / "instances.npz") as gt:
-        boxes, visible = gt["boxes"], gt["visible"]
-    dets = read_detection_dir(det_dir, rec.timestamps)
-    n_vis = int((visible >= VISIBLE).sum())
-    true = false = 0
-    for i, ts in enumerate(rec.timestamps):
-        for d in dets[int(ts)]:
-            b = (d.box.x_min, d.box.y_min, d.box.x_max, d.box.y_max)
-            ok = visible[i, d.instance] >= VISIBLE and iou(b, boxes[i, d.instance]) >= IOU_TRUE
-            true += ok
-            false += not ok
-    return true / max(n_vis, 1), true, false
+        n_vis = int((gt["visible"] >= VISIBLE).sum())
+    m = detections_against_truth(rec, det_dir)
+    ok = (own_column(m, "visible") >= VISIBLE) & (own_column(m, "iou") >= IOU_TRUE)
+    true = int(ok.sum())
+    return true / max(n_vis, 1), true, len(ok) - true
 
 
 @pytest.fixture(scope="module")

@@ -103,26 +103,18 @@ def vit_s14(path: Path, seed: int = 0, depth: int = 12, width: int = 384, heads:
 
 def truth_score(rec, det_dir) -> str:
     """Detections against the generator's true boxes (synthetic recordings only)."""
-    from egograph.frontend.proposals import iou
-    from egograph.io.detections import read_detection_dir
+    from egograph.synth.truth import detections_against_truth, own_column
 
     if rec.synth_gt_dir is None:
         return "no synth_gt: no truth"
     with np.load(rec.synth_gt_dir / "instances.npz") as gt:
-        boxes, visible = gt["boxes"], gt["visible"]
-    dets = read_detection_dir(det_dir, rec.timestamps)
-    n_vis = int((visible >= 0.5).sum())
-    true = other = clutter = 0
-    for i, ts in enumerate(rec.timestamps):
-        for d in dets[int(ts)]:
-            b = (d.box.x_min, d.box.y_min, d.box.x_max, d.box.y_max)
-            if visible[i, d.instance] >= 0.5 and iou(b, boxes[i, d.instance]) >= 0.3:
-                true += 1
-            elif any(visible[i, j] >= 0.5 and iou(b, boxes[i, j]) >= 0.3 for j in range(boxes.shape[1])):
-                other += 1
-            else:
-                clutter += 1
-    n = true + other + clutter
+        n_vis = int((gt["visible"] >= 0.5).sum())
+    m = detections_against_truth(rec, det_dir)
+    on_own = (own_column(m, "visible") >= 0.5) & (own_column(m, "iou") >= 0.3)
+    on_any = ((m["visible"] >= 0.5) & (m["iou"] >= 0.3)).any(axis=1)
+    true, other = int(on_own.sum()), int((on_any & ~on_own).sum())
+    n = len(on_own)
+    clutter = n - true - other
     return (f"visible instance-frames {n_vis}, true detections {true} ({true / max(n_vis, 1):.2f} of visible; "
             f"{true / max(n, 1):.2f} of {n} detections), false {other + clutter} (other instance {other}, "
             f"clutter {clutter})")

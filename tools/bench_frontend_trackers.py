@@ -21,15 +21,11 @@ import os
 import time
 from pathlib import Path
 
-import numpy as np
-
 from egograph.core.config import load_config
 from egograph.core.errors import InputError
 from egograph.core.resources import default_config, synth_config
 from egograph.eval.protocol import THRESHOLDS, Counts
-from egograph.frontend.proposals import iou
 from egograph.geometry.observations import Observations
-from egograph.io.detections import read_detection_dir
 from egograph.steps.detect import detect
 from egograph.steps.evaluate import evaluate
 from egograph.steps.lift import lift
@@ -37,6 +33,7 @@ from egograph.steps.recording import open_recording
 from egograph.steps.settings import EgographConfig
 from egograph.steps.track import track as track_step
 from egograph.synth.benchset import rgb_benchmark_set
+from egograph.synth.truth import detections_against_truth, own_column
 from egograph.track.registry import graph_with_scene
 
 REPO = Path(__file__).resolve().parents[1]
@@ -49,21 +46,9 @@ def true_share(rec, det_dir) -> tuple[int, int]:
     """(true, all) detections: true when on the instance (at least a quarter visible) — IoU >= 0.3
     with its true box, or the box centre inside it (the simulated SVOE boxes scatter by a third of
     the box side, so IoU alone would call many of its true matches false)."""
-    with np.load(rec.synth_gt_dir / "instances.npz") as gt:
-        boxes, visible = gt["boxes"], gt["visible"]
-    dets = read_detection_dir(det_dir, rec.timestamps)
-    true = total = 0
-    for i, ts in enumerate(rec.timestamps):
-        for d in dets[int(ts)]:
-            total += 1
-            b = (d.box.x_min, d.box.y_min, d.box.x_max, d.box.y_max)
-            k = d.instance
-            if not (0 <= k < visible.shape[1] and visible[i, k] >= 0.25):
-                continue
-            cx, cy = (b[0] + b[2]) / 2, (b[1] + b[3]) / 2
-            tb = boxes[i, k]
-            true += bool(iou(b, tb) >= 0.3 or (tb[0] <= cx <= tb[2] and tb[1] <= cy <= tb[3]))
-    return true, total
+    m = detections_against_truth(rec, det_dir)
+    ok = (own_column(m, "visible") >= 0.25) & ((own_column(m, "iou") >= 0.3) | own_column(m, "centre_inside"))
+    return int(ok.sum()), len(ok)
 
 
 def main() -> None:
