@@ -32,6 +32,18 @@ class FrameView:
 
 
 @dataclass
+class Draws:
+    """A front-end's random numbers for one frame (or many, stacked on a leading axis). Their shapes
+    are fixed whatever the knobs, which only threshold or scale them (common random numbers)."""
+
+    u_fire: np.ndarray     # (K,) uniform: whether a proposal covers the instance
+    z_match: np.ndarray    # (K, K) normal: score noise of candidate instance j (column) for instance i (row)
+    u_clutter: np.ndarray  # (K, C) uniform: whether each clutter spot is offered
+    z_clutter: np.ndarray  # (K, C) normal: score noise of each clutter spot
+    z_box: np.ndarray      # (K, 4) normal: box corner jitter of each instance's written box
+
+
+@dataclass
 class Candidate:
     instance: int
     box: np.ndarray
@@ -46,26 +58,37 @@ def size_factor(cfg: FrontEndConfig, side: np.ndarray) -> np.ndarray:
     return r / (1.0 + r)
 
 
+def box_side(boxes: np.ndarray) -> np.ndarray:
+    """Square-root area (pixels) of boxes (..., 4), 0 where there is no box (NaN)."""
+    return np.nan_to_num(np.sqrt(np.maximum((boxes[..., 2] - boxes[..., 0]) * (boxes[..., 3] - boxes[..., 1]), 0)))
+
+
 def detection_probability(cfg: FrontEndConfig, visible: np.ndarray, boxes: np.ndarray, motion: np.ndarray) -> np.ndarray:
-    """Probability (K,) that a region proposal covers each instance well enough to be matched."""
-    side = np.sqrt(np.maximum((boxes[:, 2] - boxes[:, 0]) * (boxes[:, 3] - boxes[:, 1]), 0))
-    side = np.nan_to_num(side)
+    """Probability (..., K) that a region proposal covers each instance well enough to be matched
+    (``visible`` (..., K), ``boxes`` (..., K, 4) PV pixels, ``motion`` (..., K) deg/s)."""
+    side = box_side(boxes)
     vis = np.clip((visible - cfg.min_visible) / (1 - cfg.min_visible), 0, 1) ** 0.5
     size = size_factor(cfg, side)
     blur = 1.0 / (1.0 + (motion / cfg.blur_half_dps) ** 2)
     p = cfg.detect_rate * vis * size * blur
-    short = np.nan_to_num(np.minimum(boxes[:, 2] - boxes[:, 0], boxes[:, 3] - boxes[:, 1]))
-    return np.where(np.isfinite(boxes[:, 0]) & (visible >= cfg.min_visible) & (short >= cfg.min_box_px), p, 0.0)
+    short = np.nan_to_num(np.minimum(boxes[..., 2] - boxes[..., 0], boxes[..., 3] - boxes[..., 1]))
+    return np.where(np.isfinite(boxes[..., 0]) & (visible >= cfg.min_visible) & (short >= cfg.min_box_px), p, 0.0)
+
+
+def jitter_boxes(z: np.ndarray, boxes: np.ndarray, frac: float, width: int, height: int) -> np.ndarray:
+    """``boxes`` (..., 4) with their corners moved by ``frac`` x box size x standard normals ``z``
+    (..., 4), kept in the image, at least 2 px wide and high, rounded to 0.1 px. PV pixels."""
+    w, h = boxes[..., 2] - boxes[..., 0], boxes[..., 3] - boxes[..., 1]
+    b = boxes + z * frac * np.stack([w, h, w, h], axis=-1)
+    b = np.clip(b, 0, [width - 1, height - 1, width - 1, height - 1])
+    b[..., 2] = np.maximum(b[..., 2], b[..., 0] + 2)
+    b[..., 3] = np.maximum(b[..., 3], b[..., 1] + 2)
+    return np.round(b, 1)
 
 
 def jitter_box(z: np.ndarray, box: np.ndarray, frac: float, width: int, height: int) -> np.ndarray:
-    """``box`` with its corners moved by ``frac`` x box size x standard normals ``z`` (4,), kept in the image."""
-    w, h = box[2] - box[0], box[3] - box[1]
-    b = box + z * frac * np.array([w, h, w, h])
-    b = np.clip(b, 0, [width - 1, height - 1, width - 1, height - 1])
-    b[2] = max(b[2], b[0] + 2)
-    b[3] = max(b[3], b[1] + 2)
-    return np.round(b, 1)
+    """One box (4,) through :func:`jitter_boxes`."""
+    return jitter_boxes(z[None], np.asarray(box)[None], frac, width, height)[0]
 
 
 class FrontEnd:
@@ -101,37 +124,59 @@ class FrontEnd:
                                        pool_size=self.seed.pool_size)
         return np.random.default_rng(child)
 
+    def draws(self, index: int, n_clutter: int) -> Draws:
+        """The random numbers of frame ``index`` (``n_clutter`` clutter spots per instance)."""
+        k = len(self.twins)
+        rng = self.frame_rng(index)
+        # The order of the draws is part of the recordings: changing it changes every detection.
+        return Draws(u_fire=rng.random(k), z_match=rng.standard_normal((k, k)), u_clutter=rng.random((k, n_clutter)),
+                     z_clutter=rng.standard_normal((k, n_clutter)), z_box=rng.standard_normal((k, 4)))
+
+    def top1(self, visible: np.ndarray, boxes: np.ndarray, motion: np.ndarray, clutter: np.ndarray,
+             d: Draws) -> tuple[np.ndarray, np.ndarray]:
+        """The best candidate of each instance and its similarity score, ``(best (..., K) int,
+        score (..., K))``, from one frame's view and draws or from many stacked on a leading axis.
+
+        ``best`` indexes the K instances, then the instance's C clutter spots (``K + c``); the score
+        is -inf where no candidate was offered at all. ``visible`` (..., K) 0-1, ``boxes`` (..., K, 4)
+        and ``clutter`` (..., K, C, 4) PV pixels (NaN: not in view), ``motion`` (..., K) deg/s.
+        """
+        cfg = self.cfg
+        c = clutter.shape[-2]
+        fired = d.u_fire < detection_probability(cfg, visible, boxes, motion)
+        quality = size_factor(cfg, box_side(boxes)) / (1.0 + (motion / cfg.blur_half_dps) ** 2)
+        match = self.match_mean + self.match_std * d.z_match - 0.08 * (1 - quality)[..., None, :]
+        match = np.where(fired[..., None, :], match, -np.inf)
+        seen = np.isfinite(clutter[..., 0]) & (d.u_clutter < cfg.clutter_rate)
+        clutter_scores = np.where(seen, cfg.clutter_score[0] + self.clutter_bias[:, :c] + cfg.clutter_score[1] * d.z_clutter,
+                                  -np.inf)
+        scores = np.concatenate([match, clutter_scores], axis=-1)
+        best = scores.argmax(axis=-1)  # first of equals, as offering candidates in order would keep
+        return best, np.take_along_axis(scores, best[..., None], axis=-1)[..., 0]
+
+    def source(self, instance: int, best: int) -> str:
+        """What candidate ``best`` of :meth:`top1` is for ``instance``: true, twin, other or clutter."""
+        k = len(self.twins)
+        if best >= k:
+            return SOURCE_CLUTTER
+        return SOURCE_TRUE if best == instance else SOURCE_TWIN if best == self.twins[instance] else SOURCE_OTHER
+
     def frame(self, view: FrameView, index: int) -> list[Candidate]:
         """Top-1 candidate per instance (only those scoring at least ``min_written_score``) in frame ``index``."""
         cfg = self.cfg
         k = len(view.visible)
         clutter = view.clutter_boxes[:, :cfg.clutter_per_instance]
-        c = clutter.shape[1]
-        rng = self.frame_rng(index)
-        u_fire = rng.random(k)
-        z_match = rng.standard_normal((k, k))
-        u_clutter = rng.random((k, c))
-        z_clutter = rng.standard_normal((k, c))
-        z_box = rng.standard_normal((k, 4))
-
-        fired = u_fire < detection_probability(cfg, view.visible, view.boxes, view.motion_dps)
-        side = np.nan_to_num(np.sqrt(np.maximum((view.boxes[:, 2] - view.boxes[:, 0]) * (view.boxes[:, 3] - view.boxes[:, 1]), 0)))
-        quality = size_factor(cfg, side) / (1.0 + (view.motion_dps / cfg.blur_half_dps) ** 2)
-        match = self.match_mean + self.match_std * z_match - 0.08 * (1 - quality)[None, :]
-        match[:, ~fired] = -np.inf
-        seen = np.isfinite(clutter[..., 0]) & (u_clutter < cfg.clutter_rate)
-        clutter_scores = np.where(seen, cfg.clutter_score[0] + self.clutter_bias[:, :c] + cfg.clutter_score[1] * z_clutter,
-                                  -np.inf)
-        scores = np.concatenate([match, clutter_scores], axis=1)
-        best = scores.argmax(axis=1)  # first of equals, as offering candidates in order would keep
+        d = self.draws(index, clutter.shape[1])
+        best, top = self.top1(view.visible, view.boxes, view.motion_dps, clutter, d)
         out = []
-        for i in np.flatnonzero(scores[np.arange(k), best] >= cfg.min_written_score):
+        for i in np.flatnonzero(top >= cfg.min_written_score):
             j = int(best[i])
-            if j < k:
-                source = SOURCE_TRUE if j == i else SOURCE_TWIN if j == self.twins[i] else SOURCE_OTHER
-                box, sid = view.boxes[j], j
-            else:
-                source, box, sid = SOURCE_CLUTTER, clutter[i, j - k], j - k
-            box = jitter_box(z_box[i], box, cfg.box_jitter, self.width, self.height)
-            out.append(Candidate(int(i), box, float(np.clip(round(float(scores[i, j]), 4), 0.0, 1.0)), source, sid))
+            box, sid = (view.boxes[j], j) if j < k else (clutter[i, j - k], j - k)
+            box = jitter_box(d.z_box[i], box, cfg.box_jitter, self.width, self.height)
+            out.append(Candidate(int(i), box, written_score(top[i]), self.source(int(i), j), sid))
         return out
+
+
+def written_score(score: float) -> float:
+    """The similarity as the detection files carry it: 4 decimals, clipped to 0-1."""
+    return float(np.clip(round(float(score), 4), 0.0, 1.0))

@@ -27,7 +27,7 @@ from egograph.io.calibration import PV_SHAPE, PvCalibration, write_ahat_calibrat
 from egograph.io.detections import write_detection_dir
 from egograph.io.png import write_png
 from egograph.io.poses import write_pose_json
-from egograph.synth.config import SynthConfig
+from egograph.synth.config import FrontEndConfig, SynthConfig
 from egograph.synth.frontend import FRONTEND_REVISION, SOURCE_TRUE, FrameView, FrontEnd
 from egograph.synth.scene import Scene, box_mesh, hololens_mesh, make_scene
 from egograph.synth.sensors import (
@@ -181,17 +181,22 @@ def render_mvpe_photos(scene: Scene, textures: Textures, size: int, cfg: SynthCo
     return photos
 
 
+def front_end(seed: int, name: str, cfg: FrontEndConfig, twins: np.ndarray) -> FrontEnd:
+    """The front-end of detection set ``name`` (svoe, mvpe) of the recording of ``seed``, on its own
+    random stream."""
+    return FrontEnd(np.random.SeedSequence(seed).spawn(len(STREAMS))[STREAMS.index(name)], cfg, twins, PV_SHAPE)
+
+
 def simulate_detections(cfg: SynthConfig, seed: int, ts: np.ndarray, views: dict) -> tuple[dict, dict]:
     """Run both front-ends (SVOE, MVPE) over the per-frame views -> detections and their truth lines.
 
     Each front-end has its own random stream of ``seed``, so this gives the same output inside
     ``generate`` and when re-run later on the views saved in ``synth_gt/`` (``egograph synth --redetect``).
     """
-    streams = np.random.SeedSequence(seed).spawn(len(STREAMS))
     detections: dict[str, dict[int, list[Detection]]] = {}
     truth: dict[str, list[str]] = {}
     for name in ("svoe", "mvpe"):
-        fe = FrontEnd(streams[STREAMS.index(name)], getattr(cfg.detections, name), views["twins"], PV_SHAPE)
+        fe = front_end(seed, name, getattr(cfg.detections, name), views["twins"])
         detections[name], truth[name] = {}, []
         for i, t in enumerate(ts):
             view = FrameView(views["visible"][i], views["boxes"][i], views["motion_dps"][i], views["clutter_boxes"][i])
