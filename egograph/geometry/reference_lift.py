@@ -68,7 +68,8 @@ def reference_depth_map(raw: np.ndarray, xy1: np.ndarray, norms: np.ndarray, sca
         uv = p[:, :2] / p[:, 2:3]
         u = uv[:, 0].astype(int)  # truncation towards zero, as the reference code
         v = uv[:, 1].astype(int)
-    keep = (u >= 0) & (u < w) & (v >= 0) & (v < h) & np.isfinite(uv).all(axis=1)
+    # per column: the same test as isfinite(uv).all(axis=1), without a slow reduction over an axis of 2
+    keep = (u >= 0) & (u < w) & (v >= 0) & (v < h) & np.isfinite(uv[:, 0]) & np.isfinite(uv[:, 1])
     out = np.zeros((h, w, 3), np.float32)
     out[v[keep], u[keep]] = xyz[keep]
     return out
