@@ -19,7 +19,9 @@ from __future__ import annotations
 
 import argparse
 import json
+import multiprocessing
 import time
+from concurrent.futures import ProcessPoolExecutor
 from pathlib import Path
 
 import numpy as np
@@ -36,8 +38,9 @@ from egograph.steps.settings import EgographConfig
 from egograph.steps.track import track as _track_step
 from egograph.steps.track import write_results
 from egograph.synth.benchset import ORACLE, benchmark_set, cached_observations
+from egograph.synth.calibrate import BANDS, PAPER, band_values, bootstrap_se, pooled_values
 from egograph.synth.oracle import oracle_tracker
-from egograph.synth.truth import synth_lift_errors
+from egograph.synth.truth import never_visible_intervals, synth_lift_errors
 from egograph.track.registry import INTERVAL_TRACKERS as GRAPH_TRACKERS
 from egograph.track.registry import graph_with_scene as track_graph
 from egograph.track.smooth import smooth_predictions
@@ -45,10 +48,6 @@ from egograph.track.smooth import smooth_predictions
 REPO = Path(__file__).resolve().parents[1]
 DEFAULT_CACHE = REPO / ".cache" / "bench"
 SYNTH_CONFIG = synth_config("svoe")
-BANDS = {  # memory + reference lifting must land here (issue: calibration of the synthetic front-end)
-    "svoe": {"P@0.25": (15, 32), "P@1.5": (48, 70), "L2 (m)": (0.9, 1.8)},
-    "mvpe": {"P@0.25": (45, 66), "P@1.5": (65, 84), "L2 (m)": (0.45, 0.9)},
-}
 TRACKERS = ("memory", "kf", "graph", "graph-causal")
 SMOOTHED = ("memory", "kf")  # trackers whose per-frame output also gets the "+graph" smoothing row
 MODES = ("reference", "robust")
@@ -89,6 +88,88 @@ def print_graph_targets(reports: dict, tallies: dict) -> None:
               f"{'yes' if c.holds else 'NO'} |")
 
 
+def run_recording(seed: int, root: Path, args) -> dict:
+    """Every tracker, lifting mode and detection set on one benchmark recording -> the partial
+    reports, tallies, lifting figures and timing of that recording (merged by :func:`merge`)."""
+    cfg = load_config(EgographConfig, default_config(), args.overrides)
+    reports: dict[str, dict[str, EvalReport]] = {s: {} for s in ("svoe", "mvpe")}
+    tallies: dict[tuple[str, str], IntervalTally] = {}
+    lift_stats: dict[tuple[str, str], dict] = {}
+    timing: dict[str, float] = {}
+    rec = open_recording(root, cfg)
+    poses = Path(args.poses.format(seed=seed)) if args.poses else None
+    if poses is not None:
+        rec = apply_poses(rec, poses)
+    seq = root.name
+    oracle = None  # the same for both detection sets: made once per recording
+    for det_set in ("svoe", "mvpe"):
+        for mode in args.modes:
+            cfg.lift.mode = mode
+            t0 = time.perf_counter()
+            obs, rep = cached_observations(rec, det_set, cfg, relift=args.relift)
+            if rep is not None:  # lifted now, not read from the cache
+                st = lift_stats.setdefault((det_set, mode), {"seconds": 0.0, "frames": 0, "dets": 0})
+                st["seconds"] += rep.seconds - rep.setup_seconds
+                st["frames"] += rep.n_frames
+                st["dets"] += rep.n_detections
+            err, true = synth_lift_errors(rec, obs, det_set)
+            st = lift_stats.setdefault((det_set, mode), {"seconds": 0.0, "frames": 0, "dets": 0})
+            st.setdefault("err", []).append(err[true & np.isfinite(err)])
+            timing[f"lift {mode}"] = timing.get(f"lift {mode}", 0.0) + time.perf_counter() - t0
+            observable = observable_intervals(gt_intervals(rec), obs, true, cfg.graph.score_threshold)
+            for tracker in args.trackers:
+                t1 = time.perf_counter()
+                intervals = None
+                if tracker in GRAPH_TRACKERS:
+                    result = track_graph(rec, obs, cfg, causal=tracker == "graph-causal")
+                    per_frame, intervals = result.per_frame, result.intervals
+                else:
+                    per_frame = _track_step(rec, tracker, obs, cfg).per_frame
+                timing[f"track {tracker}"] = timing.get(f"track {tracker}", 0.0) + time.perf_counter() - t1
+                name = f"{tracker} ({mode} lift)"
+                res = args.out / seq / f"{det_set}_{tracker}_{mode}"
+                score(reports, tallies, det_set, name, rec, res, per_frame, observable, intervals)
+                if tracker in SMOOTHED and "graph" in args.trackers:
+                    t1 = time.perf_counter()
+                    sm = smooth_predictions(rec, per_frame, cfg.graph)  # the "+graph" row
+                    timing[f"smooth {tracker}"] = timing.get(f"smooth {tracker}", 0.0) + time.perf_counter() - t1
+                    score(reports, tallies, det_set, f"{tracker}+graph ({mode} lift)", rec,
+                          args.out / seq / f"{det_set}_{tracker}+graph_{mode}", sm.per_frame, observable,
+                          sm.intervals)
+        if "oracle" in args.trackers_extra:
+            t1 = time.perf_counter()
+            if oracle is None:  # true boxes lifted with the last lifting mode's config
+                true_boxes, _ = cached_observations(rec, ORACLE, cfg, relift=args.relift)
+                oracle = oracle_tracker(rec, true_boxes, cfg.graph)
+            timing["oracle"] = timing.get("oracle", 0.0) + time.perf_counter() - t1
+            # observable intervals of the last lifting mode's observations of this set
+            score(reports, tallies, det_set, "oracle (true boxes, true intervals)", rec,
+                  args.out / seq / f"{det_set}_oracle", oracle.per_frame, observable, oracle.intervals)
+    return {"reports": reports, "tallies": tallies, "lift_stats": lift_stats, "timing": timing}
+
+
+def merge(part: dict, reports: dict, tallies: dict, lift_stats: dict, timing: dict) -> None:
+    """Add one recording's :func:`run_recording` output to the set's totals."""
+    for det_set, reps in part["reports"].items():
+        for name, rep in reps.items():
+            into = reports[det_set].setdefault(name, EvalReport())
+            for seq_name, seq in rep.sequences.items():
+                into.add(seq_name, seq.result, seq.intervals, seq.labels, seq.frames_without_file)
+    for key, t in part["tallies"].items():
+        into = tallies.setdefault(key, IntervalTally())
+        into.obs_true += t.obs_true
+        into.obs_recovered += t.obs_recovered
+        into.nees += t.nees
+        into.far += t.far
+    for key, st in part["lift_stats"].items():
+        into = lift_stats.setdefault(key, {"seconds": 0.0, "frames": 0, "dets": 0})
+        for k in ("seconds", "frames", "dets"):
+            into[k] += st[k]
+        into.setdefault("err", []).extend(st.get("err", []))
+    for k, v in part["timing"].items():
+        timing[k] = timing.get(k, 0.0) + v
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--seeds", type=int, nargs="+", default=[1, 2, 3, 4, 5])
@@ -105,65 +186,23 @@ def main() -> None:
     ap.add_argument("--modes", nargs="+", default=list(MODES), help="lifting modes")
     ap.add_argument("--no-oracle", dest="trackers_extra", action="store_const", const=(), default=("oracle",),
                     help="skip the oracle row (true boxes lifted, true intervals)")
+    ap.add_argument("--jobs", type=int, default=1, help="recordings run in this many worker processes at once")
     args = ap.parse_args()
 
     roots = benchmark_set(args.seeds, args.frames, config=SYNTH_CONFIG, overrides=args.synth_overrides,
                           cache=args.cache)
-    cfg = load_config(EgographConfig, default_config(), args.overrides)
     reports: dict[str, dict[str, EvalReport]] = {s: {} for s in ("svoe", "mvpe")}
     tallies: dict[tuple[str, str], IntervalTally] = {}
     lift_stats: dict[tuple[str, str], dict] = {}
     timing: dict[str, float] = {}
-    for seed, root in zip(args.seeds, roots):
-        rec = open_recording(root, cfg)
-        poses = Path(args.poses.format(seed=seed)) if args.poses else None
-        if poses is not None:
-            rec = apply_poses(rec, poses)
-        seq = root.name
-        oracle = None  # the same for both detection sets: made once per recording
-        for det_set in ("svoe", "mvpe"):
-            for mode in args.modes:
-                cfg.lift.mode = mode
-                t0 = time.perf_counter()
-                obs, rep = cached_observations(rec, det_set, cfg, relift=args.relift)
-                if rep is not None:  # lifted now, not read from the cache
-                    st = lift_stats.setdefault((det_set, mode), {"seconds": 0.0, "frames": 0, "dets": 0})
-                    st["seconds"] += rep.seconds - rep.setup_seconds
-                    st["frames"] += rep.n_frames
-                    st["dets"] += rep.n_detections
-                err, true = synth_lift_errors(rec, obs, det_set)
-                st = lift_stats.setdefault((det_set, mode), {"seconds": 0.0, "frames": 0, "dets": 0})
-                st.setdefault("err", []).append(err[true & np.isfinite(err)])
-                timing[f"lift {mode}"] = timing.get(f"lift {mode}", 0.0) + time.perf_counter() - t0
-                observable = observable_intervals(gt_intervals(rec), obs, true, cfg.graph.score_threshold)
-                for tracker in args.trackers:
-                    t1 = time.perf_counter()
-                    intervals = None
-                    if tracker in GRAPH_TRACKERS:
-                        result = track_graph(rec, obs, cfg, causal=tracker == "graph-causal")
-                        per_frame, intervals = result.per_frame, result.intervals
-                    else:
-                        per_frame = _track_step(rec, tracker, obs, cfg).per_frame
-                    timing[f"track {tracker}"] = timing.get(f"track {tracker}", 0.0) + time.perf_counter() - t1
-                    name = f"{tracker} ({mode} lift)"
-                    res = args.out / seq / f"{det_set}_{tracker}_{mode}"
-                    score(reports, tallies, det_set, name, rec, res, per_frame, observable, intervals)
-                    if tracker in SMOOTHED and "graph" in args.trackers:
-                        t1 = time.perf_counter()
-                        sm = smooth_predictions(rec, per_frame, cfg.graph)  # the "+graph" row
-                        timing[f"smooth {tracker}"] = timing.get(f"smooth {tracker}", 0.0) + time.perf_counter() - t1
-                        score(reports, tallies, det_set, f"{tracker}+graph ({mode} lift)", rec,
-                              args.out / seq / f"{det_set}_{tracker}+graph_{mode}", sm.per_frame, observable,
-                              sm.intervals)
-            if "oracle" in args.trackers_extra:
-                t1 = time.perf_counter()
-                if oracle is None:  # true boxes lifted with the last lifting mode's config
-                    true_boxes, _ = cached_observations(rec, ORACLE, cfg, relift=args.relift)
-                    oracle = oracle_tracker(rec, true_boxes, cfg.graph)
-                timing["oracle"] = timing.get("oracle", 0.0) + time.perf_counter() - t1
-                # observable intervals of the last lifting mode's observations of this set
-                score(reports, tallies, det_set, "oracle (true boxes, true intervals)", rec,
-                      args.out / seq / f"{det_set}_oracle", oracle.per_frame, observable, oracle.intervals)
+    jobs = [(seed, root, args) for seed, root in zip(args.seeds, roots)]
+    if args.jobs > 1:  # recordings are independent: each in a worker process, merged in seed order
+        with ProcessPoolExecutor(args.jobs, mp_context=multiprocessing.get_context("spawn")) as pool:
+            parts = list(pool.map(run_recording, *zip(*jobs)))
+    else:
+        parts = [run_recording(*job) for job in jobs]
+    for part in parts:
+        merge(part, reports, tallies, lift_stats, timing)
     args.out.mkdir(parents=True, exist_ok=True)
     md_all = [f"Benchmark set: {len(roots)} synthetic recordings x {args.frames} frames (seeds "
               f"{', '.join(map(str, args.seeds))}); counts pooled over the set.\n"]
@@ -189,18 +228,27 @@ def main() -> None:
         print(f"\n{det_set}: reference / robust median lifting error = {ref / rob:.1f}x")
 
     print_graph_targets(reports, tallies)
-    print("\n### Calibration bands (memory + reference lifting, pooled over the set)\n")
+    print("\n### Calibration bands (memory + reference lifting, pooled over the set; ± bootstrap standard error "
+          "over recordings)\n")
     ok_all = True
     for det_set, bands in BANDS.items():
         if "memory (reference lift)" not in reports[det_set]:
             continue
-        tot = reports[det_set]["memory (reference lift)"].total
-        vals = {"P@0.25": 100 * tot.precision[0], "P@1.5": 100 * tot.precision[-1], "L2 (m)": tot.l2_m}
+        per = [s.result.total for s in reports[det_set]["memory (reference lift)"].sequences.values()]
+        vals, se = pooled_values(per), bootstrap_se(per)
         for k, (lo, hi) in bands.items():
             ok = lo <= vals[k] <= hi
             ok_all &= ok
-            print(f"{det_set} {k}: {vals[k]:.2f} in [{lo}, {hi}] {'OK' if ok else 'OUT'}")
+            third = (hi - lo) / 6
+            print(f"{det_set} {k}: {vals[k]:.2f} ± {se[k]:.2f} in [{lo}, {hi}] {'OK' if ok else 'OUT'} (centre "
+                  f"{(lo + hi) / 2:g}, paper {PAPER[det_set][k]:g}; standard error {'<=' if se[k] <= third else '>'} "
+                  f"a third of the half-width, {third:.2f}; per recording "
+                  f"{', '.join(f'{band_values(c)[k]:.2f}' for c in per)})")
     print(f"\nall bands hold: {ok_all}")
+    never = [never_visible_intervals(root) for root in roots]
+    n_never, n_all = sum(n for n, _ in never), sum(t for _, t in never)
+    print(f"\ntrue intervals never a quarter visible (intervals_never_visible): {n_never}/{n_all} "
+          f"({100 * n_never / max(n_all, 1):.1f} %; per recording {', '.join(f'{n}/{t}' for n, t in never)})")
     print("\ntiming (s, whole set): " + ", ".join(f"{k} {v:.1f}" for k, v in timing.items()))
 
 
