@@ -229,10 +229,7 @@ def simulate_observations(table: CandidateTable, cfg: FrontEndConfig) -> tuple[O
         raise RuntimeError("a written candidate is not in the table")
     obs = table.obs.select(rows)
     obs.score = np.array([written_score(s) for s in top[f, i]], np.float32)
-    k = len(table.twins)
-    source = np.where(j >= k, SOURCE_CLUTTER,
-                      np.where(j == i, SOURCE_TRUE, np.where(j == table.twins[i], SOURCE_TWIN, SOURCE_OTHER)))
-    return obs, source
+    return obs, fe.sources(i, j)
 
 
 def annotated_sequence(rec) -> LoadedSequence:

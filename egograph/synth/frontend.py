@@ -154,12 +154,14 @@ class FrontEnd:
         best = scores.argmax(axis=-1)  # first of equals, as offering candidates in order would keep
         return best, np.take_along_axis(scores, best[..., None], axis=-1)[..., 0]
 
-    def source(self, instance: int, best: int) -> str:
-        """What candidate ``best`` of :meth:`top1` is for ``instance``: true, twin, other or clutter."""
+    def sources(self, instance: np.ndarray, best: np.ndarray) -> np.ndarray:
+        """What candidates ``best`` of :meth:`top1` are for ``instance`` (arrays of one shape):
+        ``true``, ``twin``, ``other`` or ``clutter``."""
+        instance, best = np.asarray(instance), np.asarray(best)
         k = len(self.twins)
-        if best >= k:
-            return SOURCE_CLUTTER
-        return SOURCE_TRUE if best == instance else SOURCE_TWIN if best == self.twins[instance] else SOURCE_OTHER
+        twin = self.twins[np.clip(instance, 0, k - 1)]
+        return np.where(best >= k, SOURCE_CLUTTER, np.where(best == instance, SOURCE_TRUE,
+                                                            np.where(best == twin, SOURCE_TWIN, SOURCE_OTHER)))
 
     def frame(self, view: FrameView, index: int) -> list[Candidate]:
         """Top-1 candidate per instance (only those scoring at least ``min_written_score``) in frame ``index``."""
@@ -168,12 +170,13 @@ class FrontEnd:
         clutter = view.clutter_boxes[:, :cfg.clutter_per_instance]
         d = self.draws(index, clutter.shape[1])
         best, top = self.top1(view.visible, view.boxes, view.motion_dps, clutter, d)
+        written = np.flatnonzero(top >= cfg.min_written_score)
         out = []
-        for i in np.flatnonzero(top >= cfg.min_written_score):
+        for i, source in zip(written, self.sources(written, best[written])):
             j = int(best[i])
             box, sid = (view.boxes[j], j) if j < k else (clutter[i, j - k], j - k)
             box = jitter_box(d.z_box[i], box, cfg.box_jitter, self.width, self.height)
-            out.append(Candidate(int(i), box, written_score(top[i]), self.source(int(i), j), sid))
+            out.append(Candidate(int(i), box, written_score(top[i]), str(source), sid))
         return out
 
 
