@@ -156,11 +156,7 @@ def merge(part: dict, reports: dict, tallies: dict, lift_stats: dict, timing: di
             for seq_name, seq in rep.sequences.items():
                 into.add(seq_name, seq.result, seq.intervals, seq.labels, seq.frames_without_file)
     for key, t in part["tallies"].items():
-        into = tallies.setdefault(key, IntervalTally())
-        into.obs_true += t.obs_true
-        into.obs_recovered += t.obs_recovered
-        into.nees += t.nees
-        into.far += t.far
+        tallies.setdefault(key, IntervalTally()).merge(t)
     for key, st in part["lift_stats"].items():
         into = lift_stats.setdefault(key, {"seconds": 0.0, "frames": 0, "dets": 0})
         for k in ("seconds", "frames", "dets"):

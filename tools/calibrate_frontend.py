@@ -36,7 +36,6 @@ from egograph.synth.calibrate import (
     BANDS,
     PAPER,
     SOURCES,
-    TABLE_KNOBS,
     annotated_sequence,
     band_values,
     bootstrap_se,
@@ -46,6 +45,7 @@ from egograph.synth.calibrate import (
     pooled_values,
     save_table,
     simulate_observations,
+    table_knobs,
 )
 from egograph.synth.config import SynthConfig
 
@@ -62,6 +62,7 @@ FREE_KNOBS = {
     "clutter_score": (0, 0.2, 0.8, 0.04),
     "clutter_rate": (None, 0.0, 1.0, 0.1),
 }
+
 
 def objective(values: dict[str, float], det_set: str) -> float:
     """Sum of squared distances to the band centres, in band half-widths."""
@@ -90,33 +91,27 @@ def set_knob(fe, name: str, value: float) -> None:
 class Scorer:
     """The tuning set's tables and sequences; scores a front-end setting in a second or two."""
 
-    def __init__(self, recs, tables, seqs, cfg):
-        self.recs, self.tables, self.seqs, self.cfg = recs, tables, seqs, cfg
+    def __init__(self, tables, seqs, cfg):
+        self.tables, self.seqs, self.cfg = tables, seqs, cfg
+
+    def simulate(self, det_set: str, fe):
+        """Per recording: the memory counts at ``fe``, and the sources of the observations it accepts."""
+        for tables, seq in zip(self.tables, self.seqs):
+            obs, src = simulate_observations(tables[det_set], fe)
+            accepted = obs.valid & (obs.score >= np.float32(self.cfg.track.score_threshold))
+            yield memory_counts(seq, obs, self.cfg.track), src[accepted]
 
     def counts(self, det_set: str, fe) -> list:
-        out = []
-        for tables, seq in zip(self.tables, self.seqs):
-            obs, _ = simulate_observations(tables[det_set], fe)
-            out.append(memory_counts(seq, obs, self.cfg.track))
-        return out
-
-    def sources(self, det_set: str, fe) -> dict[str, int]:
-        n = dict.fromkeys(SOURCES, 0)
-        for tables in self.tables:
-            obs, src = simulate_observations(tables[det_set], fe)
-            ok = obs.valid & (obs.score >= np.float32(self.cfg.track.score_threshold))
-            for s in SOURCES:
-                n[s] += int((ok & (src == s)).sum())
-        return n
+        return [c for c, _ in self.simulate(det_set, fe)]
 
 
 def table_path(root: Path, det_set: str, fe) -> Path:
-    key = hashlib.sha256(json.dumps({k: getattr(fe, k) for k in TABLE_KNOBS}, sort_keys=True).encode()).hexdigest()[:12]
+    key = hashlib.sha256(json.dumps(table_knobs(fe), sort_keys=True).encode()).hexdigest()[:12]
     return root / "calibration" / f"{det_set}_{key}"
 
 
-def load_tables(roots, scfg, cfg) -> tuple[list, list, list]:
-    recs, tables, seqs = [], [], []
+def load_tables(roots, scfg, cfg) -> tuple[list, list]:
+    tables, seqs = [], []
     for root in roots:
         rec = open_recording(root, cfg)
         want = {s: getattr(scfg.detections, s) for s in ("svoe", "mvpe")}
@@ -129,14 +124,14 @@ def load_tables(roots, scfg, cfg) -> tuple[list, list, list]:
                 save_table(t, table_path(root, s, want[s]))
                 have[s] = t
             print(f"{root.name}: candidate tables {', '.join(missing)} in {time.perf_counter() - t0:.0f} s", flush=True)
-        recs.append(rec)
         tables.append(have)
         seqs.append(annotated_sequence(rec))
-    return recs, tables, seqs
+    return tables, seqs
 
 
 def report(scorer: Scorer, det_set: str, fe, seeds) -> dict:
-    counts = scorer.counts(det_set, fe)
+    runs = list(scorer.simulate(det_set, fe))
+    counts = [c for c, _ in runs]
     per = [band_values(c) for c in counts]
     pool, se = pooled_values(counts), bootstrap_se(counts)
     print(f"\n### {det_set.upper()}: memory + reference lifting\n")
@@ -153,8 +148,9 @@ def report(scorer: Scorer, det_set: str, fe, seeds) -> dict:
     print(f"\n{det_set}: pooled values inside every band: {inside}; standard error <= a third of every "
           f"half-width: {se_ok} (" + ", ".join(f"{m} {se[m]:.2f} vs {(hi - lo) / 6:.2f}"
                                              for m, (lo, hi) in BANDS[det_set].items()) + ")")
-    src = scorer.sources(det_set, fe)
-    tot = max(sum(src.values()), 1)
+    accepted = np.concatenate([src for _, src in runs])
+    src = {s: int((accepted == s).sum()) for s in SOURCES}
+    tot = max(len(accepted), 1)
     print(f"{det_set}: accepted observations by source: " + ", ".join(f"{s} {100 * n / tot:.1f} %" for s, n in src.items()))
     return {"pooled": pool, "se": se, "per_seed": per, "inside": inside, "se_ok": se_ok}
 

@@ -104,6 +104,13 @@ class IntervalTally:
             self.nees += vals
             self.far += far
 
+    def merge(self, other: "IntervalTally") -> None:
+        """Add another tally of the same row (other recordings) to this one."""
+        self.obs_true += other.obs_true
+        self.obs_recovered += other.obs_recovered
+        self.nees += other.nees
+        self.far += other.far
+
     @property
     def observable_fraction(self) -> float:
         """Recovered share of the observable intervals (NaN without any)."""

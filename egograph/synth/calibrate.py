@@ -36,6 +36,7 @@ from egograph.eval.protocol import Counts, evaluate_sequence
 from egograph.geometry.config import LiftConfig
 from egograph.geometry.lift import lift_recording
 from egograph.geometry.observations import Observations
+from egograph.io.annotations import find_labels_file
 from egograph.io.atomic import atomic_path
 from egograph.synth.config import FrontEndConfig
 from egograph.synth.frontend import (
@@ -91,8 +92,8 @@ class CandidateTable:
     clutter: np.ndarray        # (N, K, C, 4) clutter spot boxes, pixels, NaN not in view
     motion: np.ndarray         # (N, K) image motion, deg/s
     draws: Draws               # stacked on the frame axis
-    index: np.ndarray          # (N, K, K + C) int32 rows of obs, -1 none
-    obs: Observations          # the lifted candidates (instance = the instance they are written for)
+    index: np.ndarray | None   # (N, K, K + C) int32 rows of obs, -1 none
+    obs: Observations | None   # the lifted candidates (instance = the instance they are written for)
 
 
 def table_knobs(cfg: FrontEndConfig) -> dict:
@@ -111,11 +112,26 @@ def _stacked_draws(fe: FrontEnd, n: int, c: int) -> Draws:
     return Draws(*(np.stack([getattr(d, name) for d in per]) for name in Draws.__dataclass_fields__))
 
 
-def candidate_mask(draws: Draws, boxes: np.ndarray, clutter: np.ndarray, twins: np.ndarray,
-                   cfg: FrontEndConfig) -> np.ndarray:
-    """(N, K, K + C) bool: the candidates a table holds (see :class:`CandidateTable`)."""
+def _table(seed: int, det_set: str, cfg: FrontEndConfig, v: dict, index: np.ndarray | None = None,
+           obs: Observations | None = None) -> CandidateTable:
+    """A table of ``det_set`` from a recording's views ``v`` (``instances.npz``), with the draws of
+    its stream; ``index`` and ``obs`` filled in later when not given."""
+    c = cfg.clutter_per_instance
+    draws = _stacked_draws(front_end(seed, det_set, cfg, v["twins"]), len(v["timestamps"]), c)
+    return CandidateTable(seed, det_set, table_knobs(cfg), v["twins"], v["visible"], v["boxes"],
+                          v["clutter_boxes"][:, :, :c], v["motion_dps"], draws, index, obs)
+
+
+def candidates(boxes: np.ndarray, clutter: np.ndarray) -> np.ndarray:
+    """(N, K, K + C, 4) the candidate boxes of each instance: every instance's box, then its own
+    clutter spots' (PV pixels, NaN not in view)."""
     n, k = boxes.shape[:2]
-    cand = np.concatenate([np.broadcast_to(boxes[:, None], (n, k, k, 4)), clutter], axis=2)
+    return np.concatenate([np.broadcast_to(boxes[:, None], (n, k, k, 4)), clutter], axis=2)
+
+
+def candidate_mask(draws: Draws, cand: np.ndarray, twins: np.ndarray, cfg: FrontEndConfig) -> np.ndarray:
+    """(N, K, K + C) bool: the candidates (:func:`candidates`) a table holds (see :class:`CandidateTable`)."""
+    k = len(twins)
     where = np.isfinite(cand[..., 0])
     other = np.ones((k, k), bool)
     np.fill_diagonal(other, False)
@@ -127,12 +143,9 @@ def candidate_mask(draws: Draws, boxes: np.ndarray, clutter: np.ndarray, twins: 
     return where
 
 
-def candidate_boxes(draws: Draws, boxes: np.ndarray, clutter: np.ndarray, where: np.ndarray,
-                    box_jitter: float) -> np.ndarray:
-    """The boxes (M, 4) the candidates ``where`` would be written with, in (frame, instance,
-    candidate) order. PV pixels."""
-    n, k = boxes.shape[:2]
-    cand = np.concatenate([np.broadcast_to(boxes[:, None], (n, k, k, 4)), clutter], axis=2)
+def candidate_boxes(draws: Draws, cand: np.ndarray, where: np.ndarray, box_jitter: float) -> np.ndarray:
+    """The boxes (M, 4) the candidates ``where`` of ``cand`` (:func:`candidates`) would be written
+    with, in (frame, instance, candidate) order. PV pixels."""
     f, i, _ = np.nonzero(where)
     return jitter_boxes(draws.z_box[f, i], cand[where], box_jitter, PV_SHAPE[1], PV_SHAPE[0])
 
@@ -142,44 +155,38 @@ def candidate_tables(rec, cfgs: dict[str, FrontEndConfig], lift: LiftConfig) -> 
     :data:`TABLE_KNOBS` matter here) of the synthetic recording ``rec`` with the reference rule
     (``lift`` with ``mode`` forced to ``reference``), all sets in one pass over the depth frames."""
     meta, v = _views(rec.root)
-    n, k = v["visible"].shape
+    seed, k = int(meta["seed"]), v["visible"].shape[1]
     ts = v["timestamps"]
-    parts = {}
+    tables, wheres, frames = {}, [], []
     dets: dict[int, list[Detection]] = {int(t): [] for t in ts}
-    for name, cfg in cfgs.items():
-        c = cfg.clutter_per_instance
-        draws = _stacked_draws(front_end(int(meta["seed"]), name, cfg, v["twins"]), n, c)
-        clutter = v["clutter_boxes"][:, :, :c]
-        where = candidate_mask(draws, v["boxes"], clutter, v["twins"], cfg)
-        written = candidate_boxes(draws, v["boxes"], clutter, where, cfg.box_jitter)
-        parts[name] = (draws, clutter, where, written)
     # one detection list per frame: set after set, each in (instance, candidate) order
-    order = []
-    for name, (_, _, where, written) in parts.items():
+    for name, cfg in cfgs.items():
+        table = tables[name] = _table(seed, name, cfg, v)
+        cand = candidates(table.boxes, table.clutter)
+        where = candidate_mask(table.draws, cand, table.twins, cfg)
+        written = candidate_boxes(table.draws, cand, where, cfg.box_jitter)
         f, i, _ = np.nonzero(where)
-        order.append((f, np.arange(len(f))))
         for ff, ii, b in zip(f, i, written):
             dets[int(ts[ff])].append(Detection(int(ii), Box(*map(float, b)), 1.0))
+        wheres.append((where, written))
+        frames.append(f)
     obs, _ = lift_recording(rec, dets, dataclasses.replace(lift, mode="reference"), progress=False, n_instances=k)
     # lift_recording keeps one row per detection of a known frame and instance, in frame and list
     # order: map each set's candidates to their rows, and check the boxes (so a change there
     # cannot silently mislabel candidates)
-    frames = np.concatenate([f for f, _ in order])
-    set_of = np.concatenate([np.full(len(f), s) for s, (f, _) in enumerate(order)])
-    rank = np.lexsort((set_of, frames))  # stable: frame, then set, then the set's own order
-    row = np.empty(len(frames), np.int64)
-    row[rank] = np.arange(len(frames))
-    offsets = np.cumsum([0] + [len(f) for f, _ in order])
-    out = {}
-    for s, (name, (draws, clutter, where, written)) in enumerate(parts.items()):
+    set_of = np.concatenate([np.full(len(f), s) for s, f in enumerate(frames)])
+    rank = np.lexsort((set_of, np.concatenate(frames)))  # stable: frame, then set, then the set's own order
+    row = np.empty(len(rank), np.int64)
+    row[rank] = np.arange(len(rank))
+    offsets = np.cumsum([0] + [len(f) for f in frames])
+    for s, (table, (where, written)) in enumerate(zip(tables.values(), wheres)):
         rows = row[offsets[s]:offsets[s + 1]]
-        if len(obs) != len(frames) or not np.array_equal(obs.box[rows], written.astype(np.float32)):
+        if len(obs) != len(rank) or not np.array_equal(obs.box[rows], written.astype(np.float32)):
             raise RuntimeError("lifted candidate rows do not line up with the candidate boxes")
-        index = np.full(where.shape, -1, np.int32)
-        index[where] = np.arange(len(rows), dtype=np.int32)
-        out[name] = CandidateTable(int(meta["seed"]), name, table_knobs(cfgs[name]), v["twins"], v["visible"],
-                                   v["boxes"], clutter, v["motion_dps"], draws, index, obs.select(rows))
-    return out
+        table.index = np.full(where.shape, -1, np.int32)
+        table.index[where] = np.arange(len(rows), dtype=np.int32)
+        table.obs = obs.select(rows)
+    return tables
 
 
 def save_table(table: CandidateTable, path: str | Path) -> None:
@@ -207,10 +214,7 @@ def load_table(rec, path: str | Path, det_set: str, cfg: FrontEndConfig) -> Cand
     want = json.loads(json.dumps({"seed": int(meta["seed"]), "det_set": det_set, "knobs": table_knobs(cfg)}))
     if saved != want:
         return None
-    n, c = len(v["timestamps"]), cfg.clutter_per_instance
-    draws = _stacked_draws(front_end(want["seed"], det_set, cfg, v["twins"]), n, c)
-    return CandidateTable(want["seed"], det_set, table_knobs(cfg), v["twins"], v["visible"], v["boxes"],
-                          v["clutter_boxes"][:, :, :c], v["motion_dps"], draws, index, Observations.load(obs_path))
+    return _table(want["seed"], det_set, cfg, v, index, Observations.load(obs_path))
 
 
 def simulate_observations(table: CandidateTable, cfg: FrontEndConfig) -> tuple[Observations, np.ndarray]:
@@ -219,8 +223,7 @@ def simulate_observations(table: CandidateTable, cfg: FrontEndConfig) -> tuple[O
     table's :data:`TABLE_KNOBS`."""
     if table_knobs(cfg) != table.knobs:
         raise ValueError(f"the candidate table was made for {table.knobs}; asked for {table_knobs(cfg)}")
-    fe = FrontEnd(np.random.SeedSequence(0), cfg, table.twins, PV_SHAPE)  # draws come from the table
-    fe.clutter_bias = front_end(table.seed, table.det_set, cfg, table.twins).clutter_bias
+    fe = front_end(table.seed, table.det_set, cfg, table.twins)  # its clutter bias; the draws are the table's
     best, top = fe.top1(table.visible, table.boxes, table.motion, table.clutter, table.draws)
     f, i = np.nonzero(top >= cfg.min_written_score)
     j = best[f, i]
@@ -235,8 +238,7 @@ def simulate_observations(table: CandidateTable, cfg: FrontEndConfig) -> tuple[O
 def annotated_sequence(rec) -> LoadedSequence:
     """The recording's poses and GT intervals, read as the evaluation reads them."""
     ann = rec.annotation_dir
-    labels = next((ann / n for n in ("labels.csv", "label.csv") if (ann / n).is_file()), None)
-    return load_sequence(rec.seq_dir / "pv_pose.json", ann / "3d_center_annot.txt", None, labels)
+    return load_sequence(rec.seq_dir / "pv_pose.json", ann / "3d_center_annot.txt", None, find_labels_file(ann))
 
 
 def memory_counts(seq: LoadedSequence, obs: Observations, cfg: BaselineConfig) -> Counts:
