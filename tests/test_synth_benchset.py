@@ -19,6 +19,7 @@ from egograph.synth.benchset import (
     ORACLE,
     benchmark_set,
     cached_observations,
+    exact_poses_view,
     observations_key,
     observations_path,
 )
@@ -136,3 +137,22 @@ def test_cached_observations_lift_once(tiny_set):
     np.testing.assert_array_equal(again.world, obs.world)
     _, report = cached_observations(rec, "mvpe", cfg, relift=True)
     assert report is not None
+
+
+def test_exact_poses_view_lifts_with_the_true_poses(tiny_set):
+    """The view's observations are its own: lifted with the true poses, not read from the
+    original's cache (both carry the poses of their own files, so their keys are equal)."""
+    _, roots = tiny_set
+    cfg = EgographConfig()
+    rec = Recording.open(roots[0])
+    obs, _ = cached_observations(rec, ORACLE, cfg)  # the original's cache is filled first
+    view = exact_poses_view(roots[0])
+    assert not (view / "observations").is_symlink()
+    exact = Recording.open(view)
+    assert observations_key(exact, ORACLE, cfg) == observations_key(rec, ORACLE, cfg)
+    true_obs, report = cached_observations(exact, ORACLE, cfg)
+    assert report is not None  # lifted, not read back
+    ts, gt, _ = read_pose_json(roots[0] / "synth_gt" / rec.seq_dir.name / "pv_pose.json")
+    np.testing.assert_array_equal(exact.pv_poses, gt)
+    assert not np.allclose(true_obs.world, obs.world, atol=1e-4)  # the reported poses carry error
+    np.testing.assert_array_equal(true_obs.timestamps, obs.timestamps)  # the same boxes

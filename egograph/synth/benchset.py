@@ -99,19 +99,29 @@ def rgb_benchmark_set(seeds: Sequence[int], frames: int, *, config: str | Path, 
     return out
 
 
+# Folders of a cached recording that hold results derived from its poses (lifted observations,
+# calibration tables). A view with other poses keeps its own: the observation key leaves the
+# poses out whenever a recording carries the poses of its own files, which the view does too.
+DERIVED_DIRS = ("observations", "calibration")
+
+
 def exact_poses_view(root: Path) -> Path:
     """A view of a cached recording with the true poses as the reported ones (``<root>_exact``
     beside it): the generator's random streams are independent, so this equals generating it with
-    ``pose_error.enabled=false``. Everything but the two pose files is a symlink."""
+    ``pose_error.enabled=false``. Every input but the two pose files is a symlink; the derived
+    folders (:data:`DERIVED_DIRS`) are the view's own."""
     seq = next(p for p in root.iterdir() if (p / "pv_pose.json").is_file())
     out = root.parent / f"{root.name}_exact"
     if (out / seq.name / "pv_pose.json").exists():
+        for name in DERIVED_DIRS:  # views made before these were its own shared the original's
+            if (out / name).is_symlink():
+                (out / name).unlink()
         return out
     tmp = root.parent / f".{root.name}_exact.tmp"
     shutil.rmtree(tmp, ignore_errors=True)
     tmp.mkdir()
     for p in root.iterdir():
-        if p != seq:
+        if p != seq and p.name not in DERIVED_DIRS:
             (tmp / p.name).symlink_to(p.resolve())
     (tmp / seq.name).mkdir()
     for p in seq.iterdir():
