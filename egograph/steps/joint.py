@@ -4,6 +4,8 @@ corrected poses. Used by ``track --tracker graph`` and by ``regt``."""
 
 from __future__ import annotations
 
+import dataclasses
+
 from egograph.core.types import TrackResult
 from egograph.io.recording import Recording
 from egograph.track.registry import graph_with_scene
@@ -26,7 +28,9 @@ def track_joint(rec: Recording, obs, cfg, progress: bool = False, factors=None) 
         if corrections is not None:  # stands were found on moved observations: back to the reported frame
             for st in stands:
                 st.world = unmove_points(st.world, st.frames, corrections)
-        jp = joint_poses(rec, stands, cfg.refine, cfg.graph.noise, cfg.joint, progress=progress, factors=factors)
+        # the detection noise the tracker fitted for this front-end (graph.noise.auto_scale)
+        noise = dataclasses.replace(cfg.graph.noise, scale=result.metadata.get("noise_scale", cfg.graph.noise.scale))
+        jp = joint_poses(rec, stands, cfg.refine, noise, cfg.joint, progress=progress, factors=factors)
         factors = jp.factors
         corrections = world_corrections(rec, jp.pv_poses)
         result = graph_with_scene(with_joint_poses(rec, jp), move_observations(obs, corrections), cfg,

@@ -6,8 +6,8 @@ Gaussian: along the ray the error grows with range (AHAT range noise, the visibl
 surface against the object centre, alias mistakes), across it with range times the
 angular error (pose, box jitter, PV-AHAT registration):
 
-    sigma_ray(r) = range_sigma_m + range_sigma_per_m * r
-    sigma_lat(r) = lateral_sigma_m + lateral_sigma_per_m * r
+    sigma_ray(r) = scale * (range_sigma_m + range_sigma_per_m * r)
+    sigma_lat(r) = scale * (lateral_sigma_m + lateral_sigma_per_m * r)
     Cov = sigma_lat^2 I + (sigma_ray^2 - sigma_lat^2) u u^T,  u = (p - c) / |p - c|
 
 A robust kernel on top (Cauchy by default) bounds the pull of a persistent false match
@@ -37,8 +37,8 @@ def detection_covariances(world: np.ndarray, camera: np.ndarray, cfg: DetectionN
     ray = np.asarray(world, float) - np.asarray(camera, float)
     r = np.linalg.norm(ray, axis=1)
     u = ray / np.maximum(r, 1e-9)[:, None]
-    s_ray = cfg.range_sigma_m + cfg.range_sigma_per_m * r
-    s_lat = cfg.lateral_sigma_m + cfg.lateral_sigma_per_m * r
+    s_ray = cfg.scale * (cfg.range_sigma_m + cfg.range_sigma_per_m * r)
+    s_lat = cfg.scale * (cfg.lateral_sigma_m + cfg.lateral_sigma_per_m * r)
     cov = (s_lat**2)[:, None, None] * np.eye(3)
     cov += (s_ray**2 - s_lat**2)[:, None, None] * (u[:, :, None] * u[:, None, :])
     return cov

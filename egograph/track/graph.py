@@ -39,6 +39,7 @@ over a recording (:func:`graph_tracker`).
 
 from __future__ import annotations
 
+import dataclasses
 from typing import Sequence
 
 import numpy as np
@@ -51,6 +52,7 @@ from egograph.track.chain import chunk_index, solve_instance_offline
 from egograph.track.config import GraphConfig
 from egograph.track.detection_factor import detection_covariances
 from egograph.track.intervals import per_frame_predictions
+from egograph.track.noise_scale import fit_scale_ratio, stand_residuals
 from egograph.track.segments import (
     InstanceSolution,
     NegativeFn,
@@ -101,6 +103,46 @@ def _select_instance_rows(obs: Observations, instance: int, threshold: float) ->
     return sub.select(order)
 
 
+def _solve_offline(subs, t_frames: np.ndarray, cfg: GraphConfig, negative, support,
+                   progress: bool) -> tuple[list[InstanceSolution], list[float]]:
+    """Every instance solved offline -> (solutions, the detection noise scale of each solve).
+
+    With ``cfg.noise.auto_scale`` the first solve uses ``auto_start``; the scale is then estimated
+    from the solve's own stands (:mod:`egograph.track.noise_scale`) and everything solved again,
+    until the estimate moves by less than 5 % or after ``auto_rounds`` re-solves; the solutions
+    returned are those of the last scale. Without it, one solve at ``scale``.
+    """
+    noise = cfg.noise
+    scales = [float(noise.auto_start if noise.auto_scale else noise.scale)]
+    bar = None
+    if progress:
+        from tqdm import tqdm
+
+        bar = tqdm(total=len(subs), desc="graph", unit="instance")
+    while True:
+        c = dataclasses.replace(cfg, noise=dataclasses.replace(noise, scale=scales[-1]))
+        solutions = []
+        for inst, sub in subs:
+            solutions.append(_track_instance_offline(inst, sub, t_frames, c, negative, support))
+            if bar is not None:
+                bar.update()
+        if not noise.auto_scale or len(scales) > noise.auto_rounds:
+            break
+        d2 = stand_residuals(solutions)
+        if len(d2) < noise.auto_min_residuals:
+            break
+        lo, hi = noise.auto_range
+        new = float(np.clip(scales[-1] * fit_scale_ratio(d2, cfg.inlier_chi2), lo, hi))
+        if abs(new / scales[-1] - 1) < 0.05:
+            break
+        scales.append(round(new, 4))
+        if bar is not None:
+            bar.reset()
+    if bar is not None:
+        bar.close()
+    return solutions, scales
+
+
 def graph_tracker(obs: Observations, timestamps: Sequence[int], cfg: GraphConfig, *, causal: bool = False,
                   negative: NegativeFn | None = None, support: SupportFn | None = None,
                   instances: Sequence[int] | None = None, lag_s: float | None = None,
@@ -119,15 +161,9 @@ def graph_tracker(obs: Observations, timestamps: Sequence[int], cfg: GraphConfig
     ids = sorted({int(i) for i in obs.instance}) if instances is None else list(instances)
     if causal:
         return _causal_result(obs, t_frames, cfg, ids, lag_s, negative, support)
-    solutions = []
-    it = ids
-    if progress:
-        from tqdm import tqdm
-
-        it = tqdm(ids, desc="graph" + (" (causal)" if causal else ""), unit="instance")
-    for inst in it:
-        sub = _select_instance_rows(obs, inst, cfg.score_threshold)
-        solutions.append(_track_instance_offline(inst, sub, t_frames, cfg, negative, support))
+    subs = [(inst, _select_instance_rows(obs, inst, cfg.score_threshold)) for inst in ids]
+    solutions, scales = _solve_offline(subs, t_frames, cfg, negative, support, progress)
+    cfg = dataclasses.replace(cfg, noise=dataclasses.replace(cfg.noise, scale=scales[-1]))
     n_excluded = 0
     if not causal and cfg.exclusion_radius_m > 0:
         n_excluded = exclude_confusions(solutions, t_frames, cfg, negative)
@@ -145,6 +181,8 @@ def graph_tracker(obs: Observations, timestamps: Sequence[int], cfg: GraphConfig
         "n_observations": int(sum(s.n_observations for s in solutions)),
         "n_chunks": int(sum(s.n_chunks for s in solutions)),
         "n_stands_excluded": n_excluded,
+        "noise_scale": scales[-1],
+        "noise_scale_rounds": scales,
     }
     return TrackResult(per_frame=per_frame, intervals=intervals, metadata=metadata, solutions=solutions)
 

@@ -101,7 +101,7 @@ def add_stand_factors(graph: gtsam.NonlinearFactorGraph, values: gtsam.Values, s
     The measurement is the lifted point in the PV camera frame at the reported pose,
     ``p = R_fᵀ (w - t_f)``: bearing ``Unit3(p)``, range ``|p|`` (metres). Sigmas: across the ray
     ``(lateral_sigma_m + lateral_sigma_per_m·r)/r`` radians, along it ``range_sigma_m +
-    range_sigma_per_m·r`` metres, times ``noise_scale``."""
+    range_sigma_per_m·r`` metres, times ``noise.scale`` and ``noise_scale``."""
     from egograph.poses.graph import pose_key
 
     n = 0
@@ -113,8 +113,8 @@ def add_stand_factors(graph: gtsam.NonlinearFactorGraph, values: gtsam.Values, s
         T = pv_reported_col[st.frames[have]]
         p = np.einsum("kji,kj->ki", T[:, :3, :3], st.world[have] - T[:, :3, 3])   # R^T (w - t)
         r = np.linalg.norm(p, axis=1)
-        lat = noise_scale * (noise.lateral_sigma_m + noise.lateral_sigma_per_m * r) / np.maximum(r, 1e-3)
-        ray = noise_scale * (noise.range_sigma_m + noise.range_sigma_per_m * r)
+        lat = noise_scale * noise.scale * (noise.lateral_sigma_m + noise.lateral_sigma_per_m * r) / np.maximum(r, 1e-3)
+        ray = noise_scale * noise.scale * (noise.range_sigma_m + noise.range_sigma_per_m * r)
         values.insert(object_key(j), gtsam.Point3(*np.asarray(st.xyz, float)))
         for key, pk, rk, lk, sk in zip(keys[have], p, r, lat, ray):
             model = robust(gtsam.noiseModel.Diagonal.Sigmas(np.array([lk, lk, sk])), noise.kernel, noise.kernel_width)

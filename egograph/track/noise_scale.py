@@ -1,0 +1,84 @@
+"""How noisy a front-end's lifted detections are: the detection noise scale, fitted from the stands.
+
+The detection factors' sigmas (:mod:`egograph.track.detection_factor`) describe good boxes on
+the object. A front-end whose boxes often cover part of the object, or the table beside it,
+lifts points that scatter several times wider; with sigmas that small the chi2 gate calls most
+true detections outliers, stands never gather support, and the intervals' covariances are
+overconfident. So the offline tracker estimates one scale for all sigmas from its own stands.
+
+Under the model, an inlier's squared Mahalanobis distance to its stand's centre, whitened by
+sigmas that are ``r`` times too small, is ``r² · χ²₃`` cut at the inlier gate ``G`` (only
+residuals below it are inliers). The fit matches the median: ``r² · F⁻¹(F(G / r²) / 2)`` equals
+the observed median, a function that grows with ``r``, solved by bisection. Each distance is
+first multiplied by ``n / (n - 1)`` (``n`` inliers in its stand): the centre was fitted to the
+same points. False matches inside the gate push the estimate up a little; the robust kernel
+and the inlier-share rule bound what they can do.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from egograph.track.detection_factor import mahalanobis2
+
+
+def chi2_cdf(x: float) -> float:
+    """CDF of chi-squared with 3 degrees of freedom (closed form)."""
+    if x <= 0:
+        return 0.0
+    return math.erf(math.sqrt(x / 2)) - math.sqrt(2 * x / math.pi) * math.exp(-x / 2)
+
+
+def chi2_ppf(p: float) -> float:
+    """Inverse of :func:`chi2_cdf` (bisection, to 1e-10 relative)."""
+    lo, hi = 0.0, 1.0
+    while chi2_cdf(hi) < p:
+        hi *= 2
+    for _ in range(200):
+        mid = 0.5 * (lo + hi)
+        if chi2_cdf(mid) < p:
+            lo = mid
+        else:
+            hi = mid
+        if hi - lo <= 1e-10 * hi:
+            break
+    return 0.5 * (lo + hi)
+
+
+def truncated_median(r: float, gate: float) -> float:
+    """Median of ``r² · χ²₃`` cut at ``gate``."""
+    return r * r * chi2_ppf(0.5 * chi2_cdf(gate / (r * r)))
+
+
+def fit_scale_ratio(d2: np.ndarray, gate: float, lo: float = 0.05, hi: float = 20.0) -> float:
+    """The factor ``r`` by which the sigmas that whitened ``d2`` (squared distances, all within
+    ``gate``) are too small; clipped to ``[lo, hi]``."""
+    target = float(np.median(np.minimum(d2, gate)))
+    if truncated_median(hi, gate) <= target:
+        return hi
+    if truncated_median(lo, gate) >= target:
+        return lo
+    a, b = math.log(lo), math.log(hi)
+    for _ in range(60):
+        m = 0.5 * (a + b)
+        if truncated_median(math.exp(m), gate) < target:
+            a = m
+        else:
+            b = m
+    return math.exp(0.5 * (a + b))
+
+
+def stand_residuals(solutions) -> np.ndarray:
+    """Squared Mahalanobis distances of every stationary segment's inliers to its centre, each
+    times ``n / (n - 1)``; ``solutions``: offline :class:`~egograph.track.segments.InstanceSolution`\\ s."""
+    out = []
+    for sol in solutions:
+        for seg in sol.segments:
+            n = seg.n_inliers
+            if not seg.stationary or n < 2:
+                continue
+            rows = seg.rows[seg.inliers]
+            out.append(mahalanobis2(sol.world[rows], seg.xyz, sol.cov[rows]) * (n / (n - 1)))
+    return np.concatenate(out) if out else np.zeros(0)

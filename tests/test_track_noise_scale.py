@@ -1,0 +1,87 @@
+"""The detection noise scale the offline tracker fits from its own stands (egograph.track.noise_scale)."""
+
+from __future__ import annotations
+
+import dataclasses
+
+import numpy as np
+import pytest
+from test_track_graph import A, B, CARRY, N, make_obs, stamps
+
+from egograph.track.config import GraphConfig
+from egograph.track.graph import graph_tracker
+from egograph.track.noise_scale import chi2_cdf, chi2_ppf, fit_scale_ratio, truncated_median
+
+
+def test_chi2_with_three_degrees_of_freedom():
+    # table values of chi-squared with 3 dof
+    for x, p in ((0.5844, 0.10), (2.3660, 0.50), (7.8147, 0.95), (11.3449, 0.99)):
+        assert chi2_cdf(x) == pytest.approx(p, abs=1e-4)
+        assert chi2_ppf(p) == pytest.approx(x, rel=1e-3)
+    assert truncated_median(1.0, 1e9) == pytest.approx(2.3660, rel=1e-3)
+
+
+@pytest.mark.parametrize("r", [0.5, 1.0, 3.0])
+def test_the_fit_recovers_the_ratio_from_residuals_cut_at_the_gate(r):
+    gate = GraphConfig().inlier_chi2
+    d2 = r * r * np.random.default_rng(1).chisquare(3, 20000)
+    d2 = d2[d2 <= gate]  # only inliers are seen
+    assert fit_scale_ratio(d2, gate) == pytest.approx(r, rel=0.05)
+
+
+def noisy_scenario(sigma_m: float, seed: int = 0) -> list:
+    """Instance 0 stands at A, is carried to B, stands at B; every 3rd frame a detection whose
+    lifted point scatters isotropically by ``sigma_m`` (no look-alike)."""
+    rng = np.random.default_rng(seed)
+    rows = []
+    for f in range(30, N, 3):
+        if CARRY[0] <= f < CARRY[1]:
+            continue
+        p = A if f < CARRY[0] else B
+        rows.append((f, 0, p + sigma_m * rng.standard_normal(3), 0.7))
+    return rows
+
+
+def frames_right(res, ts, radius_m: float = 0.15) -> float:
+    """Share of the stand frames (outside 1 s around the carry) predicted within ``radius_m``."""
+    right = total = 0
+    for f in range(N):
+        if CARRY[0] - 30 <= f < CARRY[1] + 30:
+            continue
+        truth = A if f < CARRY[0] else B
+        preds = res.per_frame.get(int(ts[f]), [])
+        total += 1
+        right += any(np.linalg.norm(np.array(p.xyz) - truth) < radius_m for p in preds)
+    return right / total
+
+
+@pytest.mark.parametrize("seed", [0, 1, 2])
+def test_a_noisy_front_end_gets_a_wider_scale_and_its_stands_back(seed):
+    """Lifted points scattering by 0.15 m (2-4x the default sigmas at these ranges): with the
+    default sigmas the gate rejects most of them and the stands fall apart; the fitted scale
+    finds both, and their covariances cover the error."""
+    obs, ts = make_obs(noisy_scenario(0.15, seed)), stamps()
+    fixed = graph_tracker(obs, ts, GraphConfig(negative_evidence=False, noise=dataclasses.replace(
+        GraphConfig().noise, auto_scale=False)))
+    auto = graph_tracker(obs, ts, GraphConfig(negative_evidence=False))
+    assert fixed.metadata["noise_scale"] == 1.0 and auto.metadata["noise_scale"] > 2.0
+    assert frames_right(auto, ts) > 0.97
+    assert frames_right(fixed, ts) < frames_right(auto, ts) - 0.1
+    assert sum(iv.n_observations for iv in fixed.intervals) < 0.5 * sum(iv.n_observations for iv in auto.intervals)
+    for iv in auto.intervals:
+        truth = A if np.linalg.norm(np.array(iv.xyz) - A) < np.linalg.norm(np.array(iv.xyz) - B) else B
+        d = np.array(iv.xyz) - truth
+        assert d @ np.linalg.solve(np.asarray(iv.covariance), d) < 11.34  # within the 99 % ellipsoid
+
+
+def test_a_precise_front_end_keeps_its_intervals():
+    """2 cm scatter: the fit shrinks the sigmas and the intervals are those of the default ones."""
+    obs, ts = make_obs(noisy_scenario(0.02)), stamps()
+    auto = graph_tracker(obs, ts, GraphConfig(negative_evidence=False))
+    fixed = graph_tracker(obs, ts, GraphConfig(negative_evidence=False, noise=dataclasses.replace(
+        GraphConfig().noise, auto_scale=False)))
+    assert auto.metadata["noise_scale"] < 1.0
+    assert len(auto.intervals) == len(fixed.intervals) == 2
+    for a, f in zip(auto.intervals, fixed.intervals):
+        assert np.linalg.norm(np.subtract(a.xyz, f.xyz)) < 0.01
+        assert abs(a.t_start - f.t_start) <= 30 * 333_333 and abs(a.t_end - f.t_end) <= 30 * 333_333
