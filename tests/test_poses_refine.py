@@ -130,6 +130,17 @@ def test_cli_refine_writes_outputs_and_apply_poses(jump_rec, tmp_path, capsys):
         assert (out / name).is_file(), name
     report = json.loads((out / "report.json").read_text())
     assert report["eval_refined"]["ate_rmse_m"] < report["eval_reported"]["ate_rmse_m"]
+    # the stretches partition the frames; their errors pool to the recording's ATE; the largest move is the max
+    rows, n = report["stretches"], report["frames"]
+    assert [r["first"] for r in rows] == [0] + [r["last"] + 1 for r in rows[:-1]] and rows[-1]["last"] == n - 1
+    for key, name in (("ate_input_m", "eval_reported"), ("ate_refined_m", "eval_refined")):
+        pooled = np.sqrt(sum(r[key] ** 2 * (r["last"] - r["first"] + 1) for r in rows) / n)
+        assert pooled == pytest.approx(report[name]["ate_rmse_m"], rel=1e-9)
+    assert report["largest_move"]["moved_m"] == pytest.approx(report["change"]["trans_max_m"], rel=1e-9)
+    assert max(r["moved_max_m"] for r in rows) == pytest.approx(report["change"]["trans_max_m"], rel=1e-9)
+    assert sum(r["mesh_tried"] for r in rows) == report["stats"]["mesh"]["tried"]
+    md = (out / "report.md").read_text()
+    assert "Sources per stretch" in md and "Largest move:" in md
     rec = Recording.open(jump_rec)
     new = apply_poses(rec, out)
     assert new.pv_valid.all() and not np.allclose(new.pv_poses, rec.pv_poses)

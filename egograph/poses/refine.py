@@ -291,6 +291,7 @@ def confirm_jumps(drift: Constraints, values, cfg: RefineConfig) -> dict:
 
     loose = drift.info["loose"]
     kept = groups = 0
+    frames: list[list[int]] = []  # (first, last) frame of each confirmed jump's window
     idx = np.flatnonzero(loose)
     # consecutive loose links form one candidate (the window around one turn end): test the jump over it
     for grp in np.split(idx, np.flatnonzero(np.diff(idx) > 1) + 1):
@@ -302,9 +303,10 @@ def confirm_jumps(drift: Constraints, values, cfg: RefineConfig) -> dict:
             np.degrees(np.linalg.norm(gtsam.Rot3.Logmap(d.rotation()))) > cfg.jump_confirm[1]
         if big:
             kept += 1
+            frames.append([int(drift.i[grp[0]]), int(drift.j[grp[-1]])])
         else:
             drift.sigmas[grp] = drift.info["tight_sigmas"][grp]
-    return {"candidates": groups, "confirmed": kept}
+    return {"candidates": groups, "confirmed": kept, "frames": frames}
 
 
 def refine_recording(rec, cfg: RefineConfig | None = None, progress: bool = False) -> RefineResult:
@@ -512,6 +514,10 @@ def report_markdown(report: dict) -> str:
         lines += ["", f"Change against the reported PV poses: translation RMS {ch['trans_rms_m'] * 1000:.1f} mm "
                       f"(max {ch['trans_max_m'] * 1000:.1f} mm), rotation RMS {ch['rot_rms_deg']:.3f} deg "
                       f"(max {ch['rot_max_deg']:.3f} deg)."]
+    if report.get("stretches"):
+        from egograph.poses.stretches import stretches_markdown
+
+        lines += stretches_markdown(report["stretches"], report.get("largest_move") or {})
     sc = report.get("selfcheck") or {}
     if sc.get("segments"):
         lines += ["", f"Self-check (mesh residual of keyframes held out of the solve): {sc['summary']}.", "",

@@ -52,10 +52,15 @@ def refine(rec: Recording, cfg, out: str | Path | None = None, *, overwrite: boo
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", UserWarning)  # missing/unreadable depth frames are counted, not printed
         result = refine_recording(rec, cfg.refine, progress=progress)
-    extra = {}
-    if rec.synth_gt_dir is not None and (rec.synth_gt_dir / "pv_pose.json").is_file():
-        import numpy as np
+    import numpy as np
 
+    from egograph.core.units import TICKS_PER_SECOND
+    from egograph.poses.metrics import pose_differences
+    from egograph.poses.stretches import largest_move, stretch_bounds, stretch_rows
+
+    extra = {}
+    err_in = err_out = None
+    if rec.synth_gt_dir is not None and (rec.synth_gt_dir / "pv_pose.json").is_file():
         from egograph.io.poses import read_pose_json
         from egograph.poses.evaluate import evaluate_trajectory
 
@@ -63,6 +68,17 @@ def refine(rec: Recording, cfg, out: str | Path | None = None, *, overwrite: boo
         _, i, j = np.intersect1d(rec.timestamps, gt_ts, return_indices=True)  # frames both have
         extra["eval_reported"] = evaluate_trajectory(rec.pv_poses[i], gt[j]).as_dict()
         extra["eval_refined"] = evaluate_trajectory(result.pv_poses[i], gt[j]).as_dict()
+        err_in, err_out = np.full(len(rec), np.nan), np.full(len(rec), np.nan)
+        err_in[i] = pose_differences(rec.pv_poses[i], gt[j])[0]
+        err_out[i] = pose_differences(result.pv_poses[i], gt[j])[0]
+    # which sources constrained which stretch, what moved most and why (report.md)
+    ts_s = (rec.timestamps - rec.timestamps[0]) / TICKS_PER_SECOND
+    moved = pose_differences(result.pv_poses, rec.pv_poses)[0]
+    keyframes = result.stats.get("mesh_keyframes") or []
+    jumps = (result.stats.get("jumps") or {}).get("frames") or []
+    bounds = stretch_bounds(len(rec), ts_s, result.selfcheck, cfg.refine.selfcheck_segment)
+    extra["stretches"] = stretch_rows(ts_s, bounds, moved, keyframes, jumps, err_in, err_out)
+    extra["largest_move"] = largest_move(ts_s, moved, keyframes, jumps)
     if out is not None:
         write_refined(result, out, rec, cfg.refine, extra, run_files=outputs.run_files(record, cfg))
     return result, extra
