@@ -223,8 +223,14 @@ def merge_segments(segs: list[Segment], world: np.ndarray, cov: np.ndarray, cfg:
     while (pair := _merge_pair(segs, cfg.merge_radius_m, apart)) is not None:
         a, b = pair
         sa, sb = segs[a], segs[b]
-        merged = make_segment(np.sort(np.concatenate([sa.rows, sb.rows])), world, cov, cfg,
-                              start=(sa.xyz + sb.xyz) / 2)
+        rows = np.sort(np.concatenate([sa.rows, sb.rows]))
+        merged = make_segment(rows, world, cov, cfg, start=(sa.xyz + sb.xyz) / 2)
+        if merged.n_inliers < max(sa.n_inliers, sb.n_inliers):
+            # the robust centre of every row went astray (false rows outnumber the stands' own):
+            # place it by the two stands' inliers, and count inliers over every row from there
+            core = np.sort(np.concatenate([sa.rows[sa.inliers], sb.rows[sb.inliers]]))
+            xyz, c = _robust_point(world[core], cov[core], cfg, (sa.xyz + sb.xyz) / 2)
+            merged = Segment(rows, xyz, c, mahalanobis2(world[rows], xyz, cov[rows]) <= cfg.inlier_chi2)
         merged.stationary = True
         segs = segs[:a] + [merged] + segs[b + 1:]
     return segs
