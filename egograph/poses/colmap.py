@@ -12,7 +12,10 @@
 5. Bundle adjustment with position priors on every keyframe (``create_pose_prior_bundle_adjuster``:
    keeps the metric frame and scale).
 6. For every matched pair that shares at least ``colmap_min_points`` triangulated points, the
-   bundle-adjusted relative pose becomes a ``BetweenFactorPose3`` on the PV poses (Cauchy kernel).
+   bundle-adjusted relative pose becomes a ``BetweenFactorPose3`` on the PV poses (Cauchy kernel),
+   with the covariance of that relative pose from the bundle adjustment
+   (``pycolmap.estimate_ba_covariance``: the Schur complement of the BA problem, scaled by the
+   variance of its reprojection residuals) plus a small floor (``colmap_covariance``).
 
 Conventions: COLMAP's ``cam_from_world`` is the OpenCV camera (x right, y down, z forward);
 the hl2ss PV pose (column form) is ``P = C_cv · diag(1, -1, -1, 1)`` with ``C_cv`` = OpenCV
@@ -139,14 +142,19 @@ def _colmap_constraints(rec, cfg, pv_estimate, progress, stats):
         t = time.perf_counter()
         recon.update_point_3d_errors()
         stats["reproj_before_px"] = float(recon.compute_mean_reprojection_error())
-        _prior_bundle_adjustment(recon, frames, names, pv_estimate, cfg)
+        adjuster = _prior_bundle_adjustment(recon, frames, names, pv_estimate, cfg)
         recon.update_point_3d_errors()
         stats["reproj_after_px"] = float(recon.compute_mean_reprojection_error())
         stats["seconds_ba"] = time.perf_counter() - t
+        bac = None
+        if cfg.colmap_covariance:
+            t = time.perf_counter()
+            bac = pycolmap.estimate_ba_covariance(pycolmap.BACovarianceOptions(), recon, adjuster)
+            stats["seconds_covariance"] = time.perf_counter() - t
         stats[MODEL_KEY] = model_files(recon, tmp / "model", frames, names, rec.timestamps)
 
         by_name = {img.name: img for img in recon.images.values()}
-        poses, point_sets = {}, {}
+        poses, point_sets, images = {}, {}, {}
         for a, name in enumerate(names):
             img = by_name.get(name)
             if img is None or not img.has_pose:
@@ -155,16 +163,46 @@ def _colmap_constraints(rec, cfg, pv_estimate, progress, stats):
             m[:3, :4] = img.cam_from_world().matrix()
             poses[a] = np.linalg.inv(m) @ FLIP                   # hl2ss PV camera -> world (column)
             point_sets[a] = {p.point3D_id for p in img.points2D if p.has_point3D()}
-    out_i, out_j, out_T = [], [], []
-    for a, b in pairs:
-        if a in poses and b in poses and len(point_sets[a] & point_sets[b]) >= cfg.colmap_min_points:
-            out_i.append(int(frames[a]))
-            out_j.append(int(frames[b]))
-            out_T.append(invert_columns(poses[a]) @ poses[b])
+            images[a] = (img.image_id, img.cam_from_world())
+        out_i, out_j, out_T, out_cov = [], [], [], []
+        # Ceres weighs every residual with 1 px; the covariance scales with the residuals' variance
+        # (per axis, from the mean reprojection error of a 2D Gaussian: mean = sigma * sqrt(pi / 2)).
+        var_px = (stats["reproj_after_px"] / np.sqrt(np.pi / 2)) ** 2
+        for a, b in pairs:
+            if a in poses and b in poses and len(point_sets[a] & point_sets[b]) >= cfg.colmap_min_points:
+                out_i.append(int(frames[a]))
+                out_j.append(int(frames[b]))
+                out_T.append(invert_columns(poses[a]) @ poses[b])
+                cov = None if bac is None else bac.get_cam2_cov_from_cam1(*images[a], *images[b])
+                out_cov.append(None if cov is None or not np.isfinite(cov).all() else relative_covariance(cov * var_px, cfg))
     n = len(out_i)
     stats["factors"] = n
+    stats["factors_with_ba_covariance"] = sum(c is not None for c in out_cov)
+    fixed = sigmas(cfg.colmap_sigma_rot, cfg.colmap_sigma_trans, 1)[0]
+    information = None
+    if stats["factors_with_ba_covariance"]:
+        information = np.array([np.linalg.inv(c) if c is not None else np.diag(fixed ** -2.0) for c in out_cov])
+        stats["ba_sigma_median"] = np.median(np.sqrt([np.diag(c) for c in out_cov if c is not None]), axis=0).tolist()
     return Constraints("colmap", "relative", np.array(out_i, int), np.array(out_j, int), np.array(out_T).reshape(n, 4, 4),
-                       sigmas(cfg.colmap_sigma_rot, cfg.colmap_sigma_trans, n), cfg.colmap_kernel, {"stats": stats}), stats
+                       sigmas(cfg.colmap_sigma_rot, cfg.colmap_sigma_trans, n), cfg.colmap_kernel, {"stats": stats},
+                       information=information), stats
+
+
+# COLMAP's OpenCV camera -> the hl2ss PV camera: a fixed rotation, so a tangent vector rotates by it.
+_FLIP_ADJOINT = np.kron(np.eye(2), FLIP[:3, :3])
+
+
+def relative_covariance(cov_cam2_from_cam1: np.ndarray, cfg: RefineConfig) -> np.ndarray:
+    """Covariance (6x6, GTSAM Pose3 tangent ``[rot, trans]``, right perturbation) of the relative PV
+    pose ``T_ab = x_a⁻¹ x_b`` from COLMAP's covariance of ``cam2_from_cam1`` (``[rot, trans]``, left
+    perturbation ``Exp(δ)·S``, OpenCV cameras), plus the ``colmap_min_sigma_*`` floor.
+
+    ``T_ab = F · S⁻¹ · F`` (``F`` the OpenCV -> hl2ss flip) and ``(Exp(δ) S)⁻¹ = S⁻¹ Exp(-δ)``, so the
+    right perturbation of ``T_ab`` is ``-Ad(F)·δ``: the covariance rotates by the flip in both blocks.
+    """
+    c = _FLIP_ADJOINT @ cov_cam2_from_cam1 @ _FLIP_ADJOINT.T
+    floor = np.r_[[np.radians(cfg.colmap_min_sigma_rot) ** 2] * 3, [cfg.colmap_min_sigma_trans ** 2] * 3]
+    return 0.5 * (c + c.T) + np.diag(floor)
 
 
 MODEL_KEY = "_model_files"
@@ -207,8 +245,9 @@ def _known_pose_reconstruction(db_path: Path, frames, names, pv_estimate):
     return recon
 
 
-def _prior_bundle_adjustment(recon, frames, names, pv_estimate, cfg: RefineConfig) -> None:
-    """Bundle adjustment (poses and points) with a position prior on every keyframe (metric frame kept)."""
+def _prior_bundle_adjustment(recon, frames, names, pv_estimate, cfg: RefineConfig):
+    """Bundle adjustment (poses and points) with a position prior on every keyframe (metric frame kept);
+    returns the Ceres adjuster (its problem gives the covariance)."""
     pycolmap = require("pycolmap", "colmap", "refine.colmap=true")
 
     config = pycolmap.BundleAdjustmentConfig()
@@ -229,7 +268,8 @@ def _prior_bundle_adjustment(recon, frames, names, pv_estimate, cfg: RefineConfi
     for pid in recon.point3D_ids():
         config.add_variable_point(pid)
     config.set_constant_cam_intrinsics(next(iter(recon.cameras)))
-    adjuster = pycolmap.create_pose_prior_bundle_adjuster(pycolmap.BundleAdjustmentOptions(),
-                                                          pycolmap.PosePriorBundleAdjustmentOptions(), config,
-                                                          priors, recon)
+    adjuster = pycolmap.create_pose_prior_ceres_bundle_adjuster(pycolmap.BundleAdjustmentOptions(),
+                                                                pycolmap.PosePriorBundleAdjustmentOptions(), config,
+                                                                priors, recon)
     adjuster.solve()
+    return adjuster

@@ -141,8 +141,18 @@ class RefineConfig(Checked):
     colmap_loop_angle: float = knob(30.0, "... and whose viewing directions differ by less than this, degrees", min=0.0)
     colmap_loop_gap: int = knob(30, "... and that are at least this many frames apart", min=0)
     colmap_max_loop_pairs: int = knob(600, "at most this many loop-closure pairs (the closest in pose are kept)", min=0)
-    colmap_sigma_rot: float = knob(0.3, "std of a COLMAP relative-pose factor, degrees", gt=0.0)
-    colmap_sigma_trans: float = knob(0.01, "std of a COLMAP relative-pose factor, metres", gt=0.0)
+    colmap_covariance: bool = knob(True, "COLMAP relative-pose factors take their covariance from the bundle "
+                                         "adjustment (pycolmap.estimate_ba_covariance, scaled by the variance of the "
+                                         "reprojection residuals); false: the fixed colmap_sigma_* below", )
+    colmap_min_sigma_rot: float = knob(0.01, "with colmap_covariance: floor added to the rotation std of a COLMAP "
+                                             "factor, degrees (errors the model leaves out: the fixed intrinsics)",
+                                       min=0.0)
+    colmap_min_sigma_trans: float = knob(0.0005, "with colmap_covariance: floor added to the translation std of a "
+                                                 "COLMAP factor, metres", min=0.0)
+    colmap_sigma_rot: float = knob(0.3, "std of a COLMAP relative-pose factor, degrees (without colmap_covariance, "
+                                        "or where the bundle adjustment gives none)", gt=0.0)
+    colmap_sigma_trans: float = knob(0.01, "std of a COLMAP relative-pose factor, metres (as colmap_sigma_rot)",
+                                     gt=0.0)
     colmap_kernel: float = knob(2.0, "Cauchy kernel width of COLMAP factors, in sigmas", min=0.0)
     colmap_prior_sigma: float = knob(0.05, "position prior std of every keyframe in the pose-prior bundle adjustment, metres",
                                      gt=0.0)
