@@ -43,10 +43,16 @@ TICKS = 10_000_000
 FRAME_TICKS = 333_333  # 30 fps
 
 
-def accuracy(seeds, frames, cache, lags, overrides, plot: Path | None = None) -> None:
+def accuracy(seeds, frames, cache, lags, overrides, plot: Path | None = None,
+             set_overrides: dict[str, list[str]] | None = None) -> None:
     roots = benchmark_set(seeds, frames, config=synth_config("svoe"), cache=cache, progress=False)
     cfg = load_config(EgographConfig, default_config(), overrides)
     cfg.lift.mode = "robust"
+    # per detection set: the same overrides plus that set's own (e.g. its front-end's noise scale)
+    cfg_of = {}
+    for d in ("svoe", "mvpe"):
+        cfg_of[d] = load_config(EgographConfig, default_config(), overrides + (set_overrides or {}).get(d, []))
+        cfg_of[d].lift.mode = "robust"
     names = ["memory", "kf", "graph-causal", *[f"graph-causal lag {s:g} s" for s in lags if s > 0], "graph (offline)"]
     pooled = {(d, n): Counts(THRESHOLDS) for d in ("svoe", "mvpe") for n in names}
     seconds = {n: 0.0 for n in names}
@@ -55,15 +61,16 @@ def accuracy(seeds, frames, cache, lags, overrides, plot: Path | None = None) ->
         rec = open_recording(root, cfg)
         for det_set in ("svoe", "mvpe"):
             obs, _ = cached_observations(rec, det_set, cfg)
+            cfg_set = cfg_of[det_set]
             for name in names:
                 t = time.perf_counter()
                 if name in ("memory", "kf"):
-                    result = track_step(rec, name, obs, cfg)
+                    result = track_step(rec, name, obs, cfg_set)
                 elif name == "graph (offline)":
-                    result = graph_with_scene(rec, obs, cfg, causal=False)
+                    result = graph_with_scene(rec, obs, cfg_set, causal=False)
                 else:
                     lag = float(name.split()[2]) if "lag" in name else 0.0
-                    c = dataclasses.replace(cfg, graph=dataclasses.replace(cfg.graph, lag_s=lag))
+                    c = dataclasses.replace(cfg_set, graph=dataclasses.replace(cfg_set.graph, lag_s=lag))
                     result = graph_with_scene(rec, obs, c, causal=True)
                 seconds[name] += time.perf_counter() - t
                 counts = evaluate(rec, result).total
@@ -225,6 +232,10 @@ def main() -> None:
     ap.add_argument("--cache", type=Path, default=REPO / ".cache" / "bench")
     ap.add_argument("--lags", type=float, nargs="+", default=[0, 1, 2, 5, 10])
     ap.add_argument("--set", dest="overrides", action="append", default=[], help="pipeline override")
+    for d in ("svoe", "mvpe"):
+        ap.add_argument(f"--set-{d}", dest=f"overrides_{d}", action="append", default=[],
+                        help=f"pipeline override for the {d.upper()} observations only, e.g. graph.noise.scale=X: "
+                             "the scale the offline tracker fits on that front-end, for the causal mode")
     ap.add_argument("--stream-frames", type=int, default=50_000)
     ap.add_argument("--instances", type=int, default=8)
     ap.add_argument("--latency-only", action="store_true")
@@ -232,7 +243,8 @@ def main() -> None:
     ap.add_argument("--plot", type=Path, help="PNG of recall at 0.25 m against lag")
     args = ap.parse_args()
     if not args.latency_only:
-        accuracy(args.seeds, args.frames, args.cache, args.lags, args.overrides, args.plot)
+        accuracy(args.seeds, args.frames, args.cache, args.lags, args.overrides, args.plot,
+                 {"svoe": args.overrides_svoe, "mvpe": args.overrides_mvpe})
     if not args.no_latency:
         latency(args.stream_frames, args.instances, seed=7)
 
