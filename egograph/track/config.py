@@ -76,7 +76,8 @@ class DetectionNoiseConfig(Checked):
                                   "on the few tight stands that start lets through", gt=0.0)
     auto_rounds: int = knob(4, "offline auto_scale: most re-solves", min=1)
     auto_min_residuals: int = knob(30, "offline auto_scale: fewest inlier residuals an estimate needs "
-                                       "(fewer: scale is kept)", min=3)
+                                       "(fewer: the solve at the current scale, auto_start at first, stands)",
+                                   min=3)
     auto_range: list = knob([0.5, 6.0], "offline auto_scale: the estimate is clipped to this range",
                             length=2, ordered=True, gt=0.0)
 
