@@ -109,7 +109,7 @@ def _colmap_constraints(rec, cfg, pv_estimate, progress, stats):
         reader.camera_params = f"{fx},{fy},{cx},{cy}"
         ext = pycolmap.FeatureExtractionOptions()
         ext.sift.max_num_features = cfg.colmap_max_features
-        ext.num_threads = 2
+        ext.num_threads = 1  # SIFT on 2 threads gives other features run to run (matching on 2 does not)
         pycolmap.extract_features(db_path, img_dir, image_names=names, camera_mode=pycolmap.CameraMode.SINGLE,
                                   reader_options=reader, extraction_options=ext, device=pycolmap.Device.cpu)
         stats["seconds_features"] = time.perf_counter() - t
