@@ -87,6 +87,9 @@ def test_graph_track_regt_smooth(tiny_rec, tmp_path, capsys):
     assert meta["tracker"] == "graph" and meta["backfilled"] is True and intervals
     out = capsys.readouterr().out
     assert "position intervals" in out and "back-filled" in out
+    # the fitted detection noise scale is kept with the intervals, and said when it was fitted
+    assert meta["noise_scale"] == meta["noise_scale_rounds"][-1] > 0
+    assert ("detection noise scale fitted" in out) == (len(meta["noise_scale_rounds"]) > 1)
     true = true_stands(rec, intervals)
     assert sum(true) >= 2
 

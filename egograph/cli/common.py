@@ -105,6 +105,11 @@ def print_intervals(con, intervals, rec, metadata: dict, labels=None) -> None:
     if metadata.get("backfilled"):
         con.print("* back-filled to the first frame (offline mode: before its first detection an instance is "
                   "reported at its first interval)")
+    rounds = metadata.get("noise_scale_rounds") or []
+    if len(rounds) > 1:
+        con.print(f"detection noise scale fitted from the stands: {metadata['noise_scale']:.2f}x the configured "
+                  f"sigmas ({' -> '.join(f'{r:g}' for r in rounds)}); for this front-end live: "
+                  f"--tracker graph-causal --set graph.noise.scale={metadata['noise_scale']:.2f}")
 
 
 def why_no_intervals(obs, rec, graph_cfg) -> str:
