@@ -19,9 +19,10 @@ from egograph.track.segments import InstanceSolution, NegativeFn, SupportFn
 def causal_tracker(obs: Observations, t_frames: np.ndarray, cfg: GraphConfig, ids: list[int], *,
                    lag_s: float | None = None, negative: NegativeFn | None = None,
                    support: SupportFn | None = None,
-                   ) -> tuple[dict[int, list[Prediction]], list[PositionInterval], list[InstanceSolution]]:
-    """Per-frame answers (ticks -> predictions), the stands' intervals and one
-    :class:`InstanceSolution` per instance of ``ids`` (its switches and counts); ``obs`` are the
+                   ) -> tuple[dict[int, list[Prediction]], list[PositionInterval], list[InstanceSolution], list[float]]:
+    """Per-frame answers (ticks -> predictions), the stands' intervals, one
+    :class:`InstanceSolution` per instance of ``ids`` (its switches and counts) and the detection
+    noise scales used, in order (one unless ``graph.noise.online_auto``); ``obs`` are the
     observations of every instance (the tracker applies ``cfg.score_threshold``)."""
     sub = obs.select(np.isin(obs.instance, np.asarray(ids, dtype=obs.instance.dtype)))
     per_frame, trk = run_online(sub, t_frames, cfg, lag_s=lag_s, negative=negative, support=support)
@@ -34,4 +35,4 @@ def causal_tracker(obs: Observations, t_frames: np.ndarray, cfg: GraphConfig, id
             solutions.append(InstanceSolution(i, ivs))
         else:
             solutions.append(InstanceSolution(i, ivs, np.array(st.switches), st.n_rows, st.k + 1))
-    return per_frame, intervals, solutions
+    return per_frame, intervals, solutions, list(trk.scales)

@@ -80,6 +80,11 @@ class DetectionNoiseConfig(Checked):
                                    min=3)
     auto_range: list = knob([0.5, 6.0], "offline auto_scale: the estimate is clipped to this range",
                             length=2, ordered=True, gt=0.0)
+    online_auto: bool = knob(True, "causal mode: fit scale as it goes, from the stands confirmed so far (the "
+                                    "offline fit on the past only), starting from auto_start; every "
+                                    "online_refit_every detections, each change of at least 5 % rescales the "
+                                    "kept rows and applies to newer factors")
+    online_refit_every: int = knob(50, "causal mode with online_auto: detections between two fits", min=1)
 
 
 @dataclass

@@ -191,8 +191,8 @@ def _causal_result(obs: Observations, t_frames: np.ndarray, cfg: GraphConfig, id
                    negative: NegativeFn | None, support: SupportFn | None) -> TrackResult:
     """The causal/lagged mode of :func:`graph_tracker` (:mod:`egograph.track.causal`)."""
     lag = cfg.lag_s if lag_s is None else float(lag_s)
-    per_frame, intervals, solutions = causal_tracker(obs, t_frames, cfg, ids, lag_s=lag, negative=negative,
-                                                     support=support)
+    per_frame, intervals, solutions, scales = causal_tracker(obs, t_frames, cfg, ids, lag_s=lag, negative=negative,
+                                                             support=support)
     metadata = {
         "tracker": "graph-causal",
         "lag_s": lag,
@@ -205,5 +205,7 @@ def _causal_result(obs: Observations, t_frames: np.ndarray, cfg: GraphConfig, id
         "n_observations": int(sum(s.n_observations for s in solutions)),
         "n_chunks": int(sum(s.n_chunks for s in solutions)),
         "n_stands_excluded": 0,
+        "noise_scale": scales[-1],
+        "noise_scale_rounds": scales,
     }
     return TrackResult(per_frame=per_frame, intervals=intervals, metadata=metadata, solutions=solutions)

@@ -42,6 +42,8 @@ A live loop::
 
 from __future__ import annotations
 
+import dataclasses
+
 from collections import deque
 from dataclasses import dataclass, field
 
@@ -64,6 +66,7 @@ from egograph.track.segments import (
     stand_confidence,
     with_floor,
 )
+from egograph.track.noise_scale import fit_scale_ratio
 from egograph.track.switchable import dcs_phi, dcs_switch_value
 
 STAND, LAST_SEEN = "stand", "last_seen"
@@ -205,6 +208,12 @@ class OnlineTracker:
         self._open: dict[int, list] = {}  # instance -> [hyp, f0, t0, f1, t1] of the span being emitted
         self.last_frame = -1
         self.n_observations = 0
+        # detection noise scale (graph.noise): fitted as the stream goes with online_auto
+        self.scale = float(cfg.noise.auto_start if cfg.noise.online_auto else cfg.noise.scale)
+        self.scales = [self.scale]
+        self._noise = dataclasses.replace(cfg.noise, scale=self.scale)
+        self._residuals: dict[tuple[int, int], np.ndarray] = {}  # (instance, segment) -> stand inliers' d2
+        self._next_fit = cfg.noise.online_refit_every
 
     # ------------------------------------------------------------------ the loop
 
@@ -275,7 +284,7 @@ class OnlineTracker:
             st = self.inst[inst] = _Instance(_isam(), t_s, rows=_Rows(cfg.online_max_rows))
         world = np.asarray(obs.world[sel], dtype=float)
         camera = np.asarray(obs.camera[sel], dtype=float)
-        cov = detection_covariances(world, camera, cfg.noise)
+        cov = detection_covariances(world, camera, self._noise)
         info = np.linalg.inv(cov)
         cell = int(np.floor((t_s - st.t_origin_s) / cfg.chunk_s))
         graph, values = gtsam.NonlinearFactorGraph(), gtsam.Values()
@@ -291,7 +300,7 @@ class OnlineTracker:
             st.chunks_in_isam += 1
             st.chunk_first_row = st.n_rows
         k = st.k
-        add_detection_factors(graph, np.full(len(world), L(k)), world, cov, cfg.noise)
+        add_detection_factors(graph, np.full(len(world), L(k)), world, cov, self._noise)
         st.isam.update(graph, values)
         here = np.asarray(st.isam.calculateEstimatePoint3(L(k)), dtype=float)
         if k and st.chunks_in_isam > 1:
@@ -311,6 +320,30 @@ class OnlineTracker:
         st.n_rows += len(sel)
         st.rows.drop_before(st.seg_first_row)
         self._decide(inst, st, here, frame)
+        if cfg.noise.online_auto and self.n_observations >= self._next_fit:
+            self._next_fit = self.n_observations + cfg.noise.online_refit_every
+            self._refit_scale()
+
+    def _refit_scale(self) -> None:
+        """The offline scale fit (:mod:`egograph.track.noise_scale`) on the residuals of the stands
+        confirmed so far; a change of at least 5 % rescales every kept row's covariance (so the stand
+        tests use it at once) and the factors of newer detections."""
+        d2 = np.concatenate(list(self._residuals.values())) if self._residuals else np.zeros(0)
+        if len(d2) < self.cfg.noise.auto_min_residuals:
+            return
+        lo, hi = self.cfg.noise.auto_range
+        new = float(np.clip(self.scale * fit_scale_ratio(d2, self.cfg.inlier_chi2), lo, hi))
+        if abs(new / self.scale - 1) < 0.05:
+            return
+        f2 = (new / self.scale) ** 2
+        for st in self.inst.values():
+            sl = slice(st.rows.lo, st.rows.hi)
+            st.rows.cov[sl] *= f2
+            st.rows.info[sl] /= f2
+        self.scale = round(new, 4)
+        self.scales.append(self.scale)
+        self._noise = dataclasses.replace(self.cfg.noise, scale=self.scale)
+        self._residuals.clear()  # residuals were whitened at the old scale
 
     def _restart(self, st: _Instance, k_last: int) -> None:
         """Bound the history: a new iSAM2 holding only landmark ``k_last`` under its marginal."""
@@ -353,6 +386,13 @@ class OnlineTracker:
                 return
         if seg.stationary:
             kind = STAND
+            if self.cfg.noise.online_auto and seg.n_inliers >= 2:
+                n = seg.n_inliers
+                self._residuals.pop((inst, st.segment_id), None)  # newest last: the oldest are dropped
+                self._residuals[(inst, st.segment_id)] = _mahalanobis2(
+                    world[seg.inliers], seg.xyz, info[seg.inliers]) * (n / (n - 1))
+                while len(self._residuals) > 64:
+                    self._residuals.pop(next(iter(self._residuals)))
         elif (seg.n_inliers >= (cfg.provisional_min_observations if st.answered else cfg.first_min_observations)
               and st.rows.score[st.rows.lo:st.rows.hi][seg.inliers].max() >= cfg.provisional_min_score):
             kind = LAST_SEEN
