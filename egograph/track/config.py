@@ -64,21 +64,21 @@ class DetectionNoiseConfig(Checked):
     kernel: str = knob("cauchy", "robust kernel on detection factors: cauchy | huber | geman_mcclure | tukey | none",
                        choices=KERNELS)
     kernel_width: float = knob(2.0, "kernel width in whitened units (sigmas)", gt=0.0)
-    scale: float = knob(1.0, "multiplies every sigma above: how noisy this front-end's lifted detections are "
-                             "(the offline tracker estimates it with auto_scale and reports it as "
-                             "noise_scale in its metadata; give that value to the causal mode)", gt=0.0)
+    scale: float = knob(1.0, "multiplies every sigma above: how noisy this front-end's lifted detections are; "
+                             "used as given only without auto_scale (offline) or online_auto (causal), "
+                             "which fit it and report it as noise_scale in the metadata", gt=0.0)
     auto_scale: bool = knob(True, "offline: estimate scale from the tracker's own stands (the whitened "
                                   "residuals of their inlier detections, fitted as a chi2 cut at inlier_chi2), "
-                                  "starting from auto_start, and solve again until it settles; the causal mode "
-                                  "keeps scale as given")
-    auto_start: float = knob(3.0, "offline auto_scale: the first solve's scale. Generous, so that a noisy "
+                                  "starting from auto_start, and solve again until it settles (the causal "
+                                  "mode: online_auto)")
+    auto_start: float = knob(3.0, "auto_scale and online_auto: the first scale. Generous, so that a noisy "
                                   "front-end's stands are found at all: from a small start the fit can settle "
                                   "on the few tight stands that start lets through", gt=0.0)
     auto_rounds: int = knob(4, "offline auto_scale: most re-solves", min=1)
-    auto_min_residuals: int = knob(30, "offline auto_scale: fewest inlier residuals an estimate needs "
+    auto_min_residuals: int = knob(30, "auto_scale and online_auto: fewest inlier residuals an estimate needs "
                                        "(fewer: the solve at the current scale, auto_start at first, stands)",
                                    min=3)
-    auto_range: list = knob([0.5, 6.0], "offline auto_scale: the estimate is clipped to this range",
+    auto_range: list = knob([0.5, 6.0], "auto_scale and online_auto: the estimate is clipped to this range",
                             length=2, ordered=True, gt=0.0)
     online_auto: bool = knob(True, "causal mode: fit scale as it goes, from the stands confirmed so far (the "
                                     "offline fit on the past only), starting from auto_start; every "
