@@ -108,8 +108,7 @@ def print_intervals(con, intervals, rec, metadata: dict, labels=None) -> None:
     rounds = metadata.get("noise_scale_rounds") or []
     if len(rounds) > 1:
         con.print(f"detection noise scale fitted from the stands: {metadata['noise_scale']:.2f}x the configured "
-                  f"sigmas ({' -> '.join(f'{r:g}' for r in rounds)}); for this front-end live: "
-                  f"--tracker graph-causal --set graph.noise.scale={metadata['noise_scale']:.2f}")
+                  f"sigmas ({' -> '.join(f'{r:g}' for r in rounds[:4])}{' -> ...' if len(rounds) > 4 else ''})")
 
 
 def why_no_intervals(obs, rec, graph_cfg) -> str:
