@@ -52,7 +52,7 @@ from egograph.track.chain import chunk_index, solve_instance_offline
 from egograph.track.config import GraphConfig
 from egograph.track.detection_factor import detection_covariances
 from egograph.track.intervals import per_frame_predictions
-from egograph.track.noise_scale import fit_scale_ratio, stand_residuals
+from egograph.track.noise_scale import refit, stand_residuals
 from egograph.track.segments import (
     InstanceSolution,
     NegativeFn,
@@ -128,14 +128,10 @@ def _solve_offline(subs, t_frames: np.ndarray, cfg: GraphConfig, negative, suppo
                 bar.update()
         if not noise.auto_scale or len(scales) > noise.auto_rounds:
             break
-        d2 = stand_residuals(solutions)
-        if len(d2) < noise.auto_min_residuals:
+        new = refit(stand_residuals(solutions), scales[-1], noise, cfg.inlier_chi2)
+        if new is None:
             break
-        lo, hi = noise.auto_range
-        new = float(np.clip(scales[-1] * fit_scale_ratio(d2, cfg.inlier_chi2), lo, hi))
-        if abs(new / scales[-1] - 1) < 0.05:
-            break
-        scales.append(round(new, 4))
+        scales.append(new)
         if bar is not None:
             bar.reset()
     if bar is not None:

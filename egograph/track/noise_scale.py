@@ -70,15 +70,36 @@ def fit_scale_ratio(d2: np.ndarray, gate: float, lo: float = 0.05, hi: float = 2
     return math.exp(0.5 * (a + b))
 
 
+SETTLED = 0.05
+"""A refitted scale within this relative change of the current one leaves it as it is."""
+
+
+def centred(d2: np.ndarray) -> np.ndarray:
+    """One stand's inlier distances ``d2`` times ``n / (n - 1)``: its centre was fitted to them."""
+    n = len(d2)
+    return d2 * (n / (n - 1))
+
+
 def stand_residuals(solutions) -> np.ndarray:
-    """Squared Mahalanobis distances of every stationary segment's inliers to its centre, each
-    times ``n / (n - 1)``; ``solutions``: offline :class:`~egograph.track.segments.InstanceSolution`\\ s."""
+    """Squared Mahalanobis distances of every stationary segment's inliers to its centre
+    (:func:`centred`); ``solutions``: offline :class:`~egograph.track.segments.InstanceSolution`\\ s."""
     out = []
     for sol in solutions:
         for seg in sol.segments:
-            n = seg.n_inliers
-            if not seg.stationary or n < 2:
+            if not seg.stationary or seg.n_inliers < 2:
                 continue
             rows = seg.rows[seg.inliers]
-            out.append(mahalanobis2(sol.world[rows], seg.xyz, sol.cov[rows]) * (n / (n - 1)))
+            out.append(centred(mahalanobis2(sol.world[rows], seg.xyz, sol.cov[rows])))
     return np.concatenate(out) if out else np.zeros(0)
+
+
+def refit(d2: np.ndarray, scale: float, noise, gate: float) -> float | None:
+    """The scale that the residuals ``d2`` (whitened at ``scale``, cut at ``gate``) call for, clipped
+    to ``noise.auto_range`` and rounded to 4 digits; None when there are fewer than
+    ``noise.auto_min_residuals`` of them or it moves by less than :data:`SETTLED`. ``noise``: the
+    :class:`~egograph.track.config.DetectionNoiseConfig`; used offline and online alike."""
+    if len(d2) < noise.auto_min_residuals:
+        return None
+    lo, hi = noise.auto_range
+    new = float(np.clip(scale * fit_scale_ratio(d2, gate), lo, hi))
+    return None if abs(new / scale - 1) < SETTLED else round(new, 4)

@@ -43,7 +43,6 @@ A live loop::
 from __future__ import annotations
 
 import dataclasses
-
 from collections import deque
 from dataclasses import dataclass, field
 
@@ -56,6 +55,7 @@ from egograph.geometry.observations import Observations
 from egograph.track.chain import L, S, add_break_factors
 from egograph.track.config import GraphConfig
 from egograph.track.detection_factor import add_detection_factors, detection_covariances
+from egograph.track.noise_scale import centred, refit
 from egograph.track.segments import (
     NegativeFn,
     Segment,
@@ -66,7 +66,6 @@ from egograph.track.segments import (
     stand_confidence,
     with_floor,
 )
-from egograph.track.noise_scale import fit_scale_ratio
 from egograph.track.switchable import dcs_phi, dcs_switch_value
 
 STAND, LAST_SEEN = "stand", "last_seen"
@@ -329,18 +328,15 @@ class OnlineTracker:
         confirmed so far; a change of at least 5 % rescales every kept row's covariance (so the stand
         tests use it at once) and the factors of newer detections."""
         d2 = np.concatenate(list(self._residuals.values())) if self._residuals else np.zeros(0)
-        if len(d2) < self.cfg.noise.auto_min_residuals:
-            return
-        lo, hi = self.cfg.noise.auto_range
-        new = float(np.clip(self.scale * fit_scale_ratio(d2, self.cfg.inlier_chi2), lo, hi))
-        if abs(new / self.scale - 1) < 0.05:
+        new = refit(d2, self.scale, self.cfg.noise, self.cfg.inlier_chi2)
+        if new is None:
             return
         f2 = (new / self.scale) ** 2
         for st in self.inst.values():
             sl = slice(st.rows.lo, st.rows.hi)
             st.rows.cov[sl] *= f2
             st.rows.info[sl] /= f2
-        self.scale = round(new, 4)
+        self.scale = new
         self.scales.append(self.scale)
         self._noise = dataclasses.replace(self.cfg.noise, scale=self.scale)
         self._residuals.clear()  # residuals were whitened at the old scale
@@ -387,10 +383,9 @@ class OnlineTracker:
         if seg.stationary:
             kind = STAND
             if self.cfg.noise.online_auto and seg.n_inliers >= 2:
-                n = seg.n_inliers
                 self._residuals.pop((inst, st.segment_id), None)  # newest last: the oldest are dropped
-                self._residuals[(inst, st.segment_id)] = _mahalanobis2(
-                    world[seg.inliers], seg.xyz, info[seg.inliers]) * (n / (n - 1))
+                self._residuals[(inst, st.segment_id)] = centred(
+                    _mahalanobis2(world[seg.inliers], seg.xyz, info[seg.inliers]))
                 while len(self._residuals) > 64:
                     self._residuals.pop(next(iter(self._residuals)))
         elif (seg.n_inliers >= (cfg.provisional_min_observations if st.answered else cfg.first_min_observations)
