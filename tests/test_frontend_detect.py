@@ -142,3 +142,57 @@ def test_guidance_projects_true_positions_into_true_boxes(detected):
             total += 1
             inside += k in uv and x1 - 5 <= uv[k][0] <= x2 + 5 and y1 - 5 <= uv[k][1] <= y2 + 5
     assert total > 0 and inside == total
+
+
+def test_guidance_from_a_results_folder_keeps_true_detections(detected, tmp_path, capsys):
+    """``egograph detect --guide RESULTS``: frame i is guided by the results of frame i - 1 (so a
+    causal track stays causal); guided by the true positions, detect keeps every true detection
+    it made without guidance and gains or keeps the rest; a guide folder without predictions is
+    refused naming it, and nothing is written."""
+    from egograph.cli.main import main
+    from egograph.core.types import Prediction
+    from egograph.io.detections import write_results_dir
+    from egograph.steps.detect import guides_from_results
+
+    rec, cfg, out, _ = detected
+    with np.load(rec.synth_gt_dir / "instances.npz") as gt:
+        pos = gt["positions"]
+    stamps = [int(t) for t in rec.timestamps]
+    write_results_dir(tmp_path / "truth", {ts: [Prediction(k, tuple(pos[i, k]), 1.0) for k in range(pos.shape[1])]
+                                           for i, ts in enumerate(stamps)}, stamps)
+    guide = guides_from_results(rec, tmp_path / "truth")
+    assert np.isnan(guide[0][0]).all()                                 # nothing before the first frame
+    assert np.allclose(guide[2][1:], pos[:-1, 2], atol=1e-5)           # frame i: the results of frame i - 1
+    def run(out_dir, *extra):
+        return main(["detect", str(rec.root), "--enroll", "mvpe", "--out", str(out_dir), "--quiet", *extra])
+
+    radius = ["--set", "frontend.guidance_radius_px=150"]
+    assert run(tmp_path / "guided", "--guide", str(tmp_path / "truth"), *radius) == 0
+    _, true_u, false_u = recall_and_false(rec, out)
+    _, true_g, false_g = recall_and_false(rec, tmp_path / "guided")
+    print(f"unguided {true_u} true / {false_u} false; guided by the truth {true_g} / {false_g}")
+    assert true_g >= true_u and true_g + false_g == true_u + false_u   # the same frames detected, choices moved
+    write_results_dir(tmp_path / "empty", {}, stamps)
+    capsys.readouterr()
+    assert run(tmp_path / "never", "--guide", str(tmp_path / "empty"), *radius) == 2
+    err = capsys.readouterr().err
+    assert "empty" in err and "no prediction" in err and not (tmp_path / "never").exists()
+    assert run(tmp_path / "never", "--guide", str(tmp_path / "truth"), "--set", "frontend.guidance_radius_px=0") == 2
+    assert "guidance_radius_px" in capsys.readouterr().err and not (tmp_path / "never").exists()
+
+
+def test_whitened_matching_keeps_a_subset_of_the_plain_matches(detected, tmp_path):
+    """frontend.whiten: a detection must pass the plain cosine gate and the whitened one, so the
+    (frame, instance) pairs detected are a subset of the plain run's; the similarity written stays
+    the plain cosine (what the trackers' score_threshold reads); the background pass is timed."""
+    from egograph.steps.lift import load_detections
+
+    rec, cfg, out, _ = detected
+    wcfg = cfg_for(whiten="all", whiten_frames=20)
+    report = detect(rec, "mvpe", wcfg, tmp_path / "white", progress=False)
+    plain = load_detections(rec, str(out), cfg)
+    white = load_detections(rec, str(tmp_path / "white"), wcfg)
+    pairs = lambda dets: {(ts, d.instance) for ts, v in dets.items() for d in v}
+    assert pairs(white) <= pairs(plain) and len(pairs(white)) < len(pairs(plain))
+    assert all(d.score >= cfg.frontend.similarity_threshold for v in white.values() for d in v)
+    assert report.seconds["background"] > 0 and report.frames == len(rec)

@@ -26,11 +26,12 @@ from egograph.core.errors import InputError
 from egograph.core.resources import default_config, synth_config
 from egograph.eval.protocol import THRESHOLDS, Counts
 from egograph.geometry.observations import Observations
-from egograph.steps.detect import detect
+from egograph.steps.detect import detect, guides_from_predictions
 from egograph.steps.evaluate import evaluate
 from egograph.steps.lift import lift
 from egograph.steps.recording import open_recording
 from egograph.steps.settings import EgographConfig
+from egograph.steps.sot import eval_2d, sot
 from egograph.steps.track import track as track_step
 from egograph.synth.benchset import rgb_benchmark_set
 from egograph.synth.truth import detections_against_truth, own_column
@@ -57,6 +58,9 @@ def main() -> None:
     ap.add_argument("--frames", type=int, default=600)
     ap.add_argument("--cache", type=Path, default=REPO / ".cache" / "bench_fe")
     ap.add_argument("--sets", nargs="+", default=["svoe", "mvpe"], choices=["svoe", "mvpe"])
+    ap.add_argument("--tag", default="", help="detection and observation folders under this sub-folder of the "
+                                             "cache (front-end variants side by side)")
+    ap.add_argument("--no-sot", action="store_true", help="leave out the SOT (CSRT) row")
     ap.add_argument("--set", dest="overrides", action="append", default=[], metavar="KEY=VALUE",
                     help="egograph configuration override (e.g. frontend.similarity_threshold=0.65)")
     args = ap.parse_args()
@@ -64,26 +68,39 @@ def main() -> None:
 
     roots = rgb_benchmark_set(args.seeds, args.frames, config=synth_config("svoe"), cache=args.cache)
     base = load_config(EgographConfig, default_config(), args.overrides)
+    radius = base.frontend.guidance_radius_px
     pooled: dict = {}
     shares: dict = {}
+    two_d: dict = {}  # (source, set) -> list of Track2dScores, one per recording
     t_detect, frames = 0.0, 0
     for root in roots:
         rec = open_recording(root, base)
         for det_set in args.sets:
             frames += len(rec)
-            out = args.cache / "detect" / root.name / det_set
+            out = args.cache / "detect" / args.tag / root.name / det_set
             t = time.perf_counter()
             detect(rec, det_set, base, out, progress=True)
             t_detect += time.perf_counter() - t
-            for source, spec in (("simulated", det_set), ("detect", str(out))):
-                sim_dir = rec.detections_dir(det_set) if source == "simulated" else out
+            sources = [("simulated", det_set, rec.detections_dir(det_set)), ("detect", str(out), out)]
+            if det_set == "svoe" and not args.no_sot:
+                sot_dir = args.cache / "sot" / root.name
+                sot(rec, base, sot_dir, method="csrt", progress=False)
+                sources.append(("SOT (CSRT)", str(sot_dir), sot_dir))
+            k = 0
+            while k < len(sources):
+                source, spec, folder = sources[k]
+                k += 1
                 a, b = shares.get((source, det_set), (0, 0))
-                tr, tot = true_share(rec, sim_dir)
+                tr, tot = true_share(rec, folder)
                 shares[(source, det_set)] = (a + tr, b + tot)
+                two_d.setdefault((source, det_set), []).append(eval_2d(rec, folder, base))
                 for label, tracker, mode in PIPELINES:
+                    if source.startswith("SOT") and tracker != "memory":
+                        continue  # the paper's SOT row: its boxes lifted and kept in memory
                     cfg = load_config(EgographConfig, default_config(), [*args.overrides, f"lift.mode={mode}"])
+                    tag = source.split()[0].lower() + ("_g" if "guidance" in source else "")
                     try:
-                        obs, _ = lift(rec, spec, cfg, args.cache / "obs" / root.name / f"{source}_{det_set}_{mode}.npz",
+                        obs, _ = lift(rec, spec, cfg, args.cache / "obs" / args.tag / root.name / f"{tag}_{det_set}_{mode}.npz",
                                       progress=False)
                     except InputError as e:  # nothing lifted: no predictions (every true frame a miss)
                         print(f"{root.name} {source} {det_set} {mode}: {e}", flush=True)
@@ -94,6 +111,13 @@ def main() -> None:
                         result = track_step(rec, tracker, obs, cfg)
                     key = (source, det_set, label)
                     pooled[key] = pooled.get(key, Counts(THRESHOLDS)) + evaluate(rec, result).total
+                    if source == "detect" and tracker == "graph-causal" and radius > 0:
+                        # 3D guidance as in the paper: each frame's choice among the above-threshold
+                        # proposals follows the causal tracker's estimate of the frame before
+                        out_g = args.cache / "detect" / args.tag / root.name / f"{det_set}_guided_{radius:g}px"
+                        detect(rec, det_set, base, out_g, guide_world=guides_from_predictions(rec, result.per_frame),
+                               progress=False)
+                        sources.append(("detect + 3D guidance", str(out_g), out_g))
     print(f"\nRGB recordings: seeds {', '.join(map(str, args.seeds))} x {args.frames} frames; "
           f"detect {frames / max(t_detect, 1e-9):.1f} frames/s over {frames} frames\n")
     print("| source | set | true / all detections | tracker | P@0.25 | P@1.5 | R@0.25 | R@1.5 | L2 (m) |")
@@ -103,10 +127,22 @@ def main() -> None:
         print(f"| {source} | {det_set} | {tr} / {tot} ({100 * tr / max(tot, 1):.0f} %) | {label} | "
               f"{100 * c.precision[0]:.1f} | {100 * c.precision[-1]:.1f} | {100 * c.recall[0]:.1f} | "
               f"{100 * c.recall[-1]:.1f} | {f'{c.l2_m:.2f}' if c.l2_n else '-'} |")
+    print("\n2D table against 2d_bbox_annot/ (pooled over the annotated pairs of every recording; a pair without "
+          "a box counts as a miss):\n")
+    print("| source | set | AUC | P@20px | P_norm | pairs with a box |")
+    print("|---|---|---|---|---|---|")
+    for (source, det_set), rows in two_d.items():
+        n = sum(r.n for r in rows)
+        mean = {a: sum(getattr(r, a) * r.n for r in rows if r.n) / max(n, 1) for a in ("auc", "precision_20px",
+                                                                                        "norm_precision")}
+        print(f"| {source} | {det_set} | {mean['auc']:.1f} | {mean['precision_20px']:.1f} | "
+              f"{mean['norm_precision']:.1f} | {sum(r.n_detected for r in rows)} / {n} |")
     print("\nRatios graph + robust / memory + reference (target: SVOE >= 2.5x P and R at 0.25 m, MVPE >= 1.4x, "
           "L2 <= 0.5x):\n")
-    for source in ("simulated", "detect"):
+    for source in dict.fromkeys(k[0] for k in pooled if not k[0].startswith("SOT")):
         for det_set in args.sets:
+            if (source, det_set, PIPELINES[1][0]) not in pooled:
+                continue
             g, m = pooled[(source, det_set, PIPELINES[1][0])], pooled[(source, det_set, PIPELINES[0][0])]
             ratio = [g.precision[0] / max(m.precision[0], 1e-9), g.recall[0] / max(m.recall[0], 1e-9),
                      g.l2_m / max(m.l2_m, 1e-9)]

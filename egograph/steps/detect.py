@@ -29,7 +29,7 @@ from egograph.steps.recording import labels as read_labels
 from egograph.steps.recording import require_annotations
 
 ENROLLMENTS = ("svoe", "mvpe")
-STAGES = ("read", "proposals", "crops", "encoder", "matching", "write")
+STAGES = ("background", "read", "proposals", "crops", "encoder", "matching", "write")
 
 
 @dataclass
@@ -162,6 +162,55 @@ def project_guides(rec: Recording, guide_world: dict[int, np.ndarray] | None, i:
     return out
 
 
+def guides_from_results(rec: Recording, path: str | Path) -> dict[int, np.ndarray]:
+    """3D guidance from a tracker's results folder (``egograph track --out``): instance -> (N, 3)
+    world positions, metres, NaN where none. The guide for PV frame ``i`` is the instance's
+    prediction at frame ``i - 1``, the last estimate an online loop would hold before detecting
+    in frame ``i``; so the guidance from a causal track (``graph-causal``, ``memory``, ``kf``)
+    uses no frame at or after ``i``, while an offline track's guidance looks ahead.
+
+    A folder that is not there, or whose files hold no prediction for any PV frame of ``rec``,
+    is an error naming the folder and the file names tried."""
+    from egograph.io.detections import read_results_dir
+
+    folder = Path(path)
+    if not folder.is_dir():
+        raise InputError(folder, "3D guidance: not a results folder (egograph track --out DIR)")
+    stamps = [int(t) for t in rec.timestamps]
+    guide = guides_from_predictions(rec, read_results_dir(folder, stamps))
+    if not guide:
+        raise InputError(folder, f"3D guidance: no prediction for any of the {len(stamps)} PV frames "
+                                 f"(tried {stamps[0]}.txt ... {stamps[-1]}.txt)" if stamps else
+                                 "3D guidance: the recording has no PV frame")
+    return guide
+
+
+def guides_from_predictions(rec: Recording, per_frame: dict) -> dict[int, np.ndarray]:
+    """:func:`guides_from_results` on a tracker's per-frame predictions in memory (``ts ->
+    [Prediction]``, e.g. ``TrackResult.per_frame``): frame ``i``'s guide is frame ``i - 1``'s
+    prediction; {} when there is none."""
+    stamps = [int(t) for t in rec.timestamps]
+    guide: dict[int, np.ndarray] = {}
+    for i, ts in enumerate(stamps[:-1]):
+        for p in per_frame.get(ts, ()):
+            if p.instance not in guide:
+                guide[p.instance] = np.full((len(stamps), 3), np.nan)
+            guide[p.instance][i + 1] = p.xyz
+    return guide
+
+
+def guide_digest(guide_world: dict[int, np.ndarray] | None) -> str | None:
+    """What the detections depend on of the guidance: a digest of its positions (None without;
+    the run record says ``guided: false`` then, as before guidance could be given)."""
+    if guide_world is None:
+        return None
+    h = hashlib.sha256()
+    for inst in sorted(guide_world):
+        h.update(str(inst).encode())
+        h.update(np.ascontiguousarray(np.asarray(guide_world[inst], np.float64)).tobytes())
+    return h.hexdigest()[:16]
+
+
 def frame_text(rows: list[tuple[int, tuple, float, float]]) -> str:
     """``instance x1 y1 x2 y2 det_conf similarity`` lines (boxes to 0.1 px, scores to 1e-4)."""
     return "".join(" ".join([str(inst), *(format_number(round(v, 1)) for v in box),
@@ -171,14 +220,22 @@ def frame_text(rows: list[tuple[int, tuple, float, float]]) -> str:
 
 
 class FrameDetector:
-    """Proposals -> crops -> embeddings -> top-1 per instance, for one PV frame at a time."""
+    """Proposals -> crops -> embeddings -> top-1 per instance, for one PV frame at a time; with a
+    ``whitening`` (:mod:`egograph.frontend.whiten`) a proposal must also pass the whitened gate
+    and the best whitened score is kept."""
 
-    def __init__(self, rec: Recording, cfg, encoder, enrollment, sources, report: DetectReport):
+    def __init__(self, rec: Recording, cfg, encoder, enrollment, sources, report: DetectReport, whitening=None):
         self.rec, self.cfg, self.encoder, self.enrollment, self.sources, self.report = (
             rec, cfg, encoder, enrollment, sources, report)
+        self.whitening = whitening
+        if whitening is not None:
+            from egograph.frontend.matching import Enrollment
 
-    def __call__(self, i: int, rgb: np.ndarray, guides: dict | None = None) -> list[tuple[int, tuple, float, float]]:
-        from egograph.frontend.matching import crop, pick
+            self.white = Enrollment({k: whitening(v) for k, v in enrollment.views.items()}, enrollment.pooling)
+
+    def embed_proposals(self, i: int, rgb: np.ndarray) -> tuple[list, np.ndarray]:
+        """Frame ``i``'s proposals that give a crop, and their embeddings (P, D, unit rows)."""
+        from egograph.frontend.matching import crop
         from egograph.frontend.proposals import keep_plausible, nms
 
         cfg, sec = self.cfg, self.report.seconds
@@ -196,20 +253,31 @@ class FrameDetector:
                 kept.append(p)
         t2 = time.perf_counter()
         emb = self.encoder.embed(crops)
+        sec["proposals"] += t1 - t0
+        sec["crops"] += t2 - t1
+        sec["encoder"] += time.perf_counter() - t2
+        return kept, emb
+
+    def __call__(self, i: int, rgb: np.ndarray, guides: dict | None = None) -> list[tuple[int, tuple, float, float]]:
+        from egograph.frontend.matching import pick
+
+        cfg = self.cfg
+        kept, emb = self.embed_proposals(i, rgb)
         t3 = time.perf_counter()
         rows = []
         if kept:
             boxes = [p.box for p in kept]
+            white = self.white.similarity(self.whitening(emb)) if self.whitening is not None else None
             for inst, sims in self.enrollment.similarity(emb).items():
                 g = (guides or {}).get(inst)
-                k = pick(sims, boxes, cfg.similarity_threshold, g, cfg.guidance_radius_px)
+                if white is None:
+                    k = pick(sims, boxes, cfg.similarity_threshold, g, cfg.guidance_radius_px)
+                else:   # both gates; among the proposals passing them the best whitened score
+                    score = np.where(sims >= cfg.similarity_threshold, white[inst], -np.inf)
+                    k = pick(score, boxes, cfg.whiten_threshold, g, cfg.guidance_radius_px)
                 if k is not None:
                     rows.append((inst, kept[k].box, kept[k].conf, float(sims[k])))
-        t4 = time.perf_counter()
-        sec["proposals"] += t1 - t0
-        sec["crops"] += t2 - t1
-        sec["encoder"] += t3 - t2
-        sec["matching"] += t4 - t3
+        self.report.seconds["matching"] += time.perf_counter() - t3
         self.report.proposals += len(kept)
         return sorted(rows)
 
@@ -236,6 +304,30 @@ def detect_frame(rec: Recording, i: int, ts: int, rgb: np.ndarray | None, run: "
     for inst, *_ in rows:
         report.detections[inst] = report.detections.get(inst, 0) + 1
     files[f"{ts}.txt"] = frame_text(rows)
+
+
+def background_whitening(rec: Recording, run: FrameDetector, cfg, report: DetectReport):
+    """Whitening (:func:`egograph.frontend.whiten.fit_whitening`) fitted to the proposals of
+    ``cfg.whiten_frames`` PV frames evenly spread over ``rec`` (unreadable frames skipped); None,
+    with a warning naming the recording, when they give fewer than 2 crops."""
+    from egograph.frontend.whiten import fit_whitening
+
+    t0 = time.perf_counter()
+    saved = dict(report.seconds)
+    picks = np.unique(np.linspace(0, len(rec) - 1, min(cfg.whiten_frames, len(rec))).round().astype(int))
+    embs = []
+    for i in picks:
+        rgb = read_pv(rec, int(i))
+        if rgb is not None:
+            embs.append(run.embed_proposals(int(i), rgb)[1])
+    report.seconds = saved      # the sample pass is timed as one stage of its own
+    report.seconds["background"] += time.perf_counter() - t0
+    emb = np.concatenate(embs) if embs else np.zeros((0, 0), np.float32)
+    if len(emb) < 2:
+        warnings.warn(f"{rec.seq_dir}: whitened matching off: the {len(picks)} sampled PV frames gave "
+                      f"{len(emb)} proposal crop(s), too few for background statistics", stacklevel=2)
+        return None
+    return fit_whitening(emb, cfg.whiten_shrink)
 
 
 def encoder_id(cfg, encoder_path: str | Path | None) -> dict:
@@ -275,7 +367,7 @@ def detect(rec: Recording, enroll: str, cfg, out: str | Path, *, encoder: str | 
     source_name = proposals or fcfg.proposals
     record = outputs.run_record("detect", cfg, {"recording": outputs.recording_digest(rec), "enroll": enroll,
                                                 "encoder": encoder_id(cfg, encoder), "proposals": source_name,
-                                                "guided": guide_world is not None},
+                                                "guided": guide_digest(guide_world) or False},
                                 depends_on={"frontend": to_dict(fcfg), "io": to_dict(cfg.io)})
     if outputs.up_to_date(Path(out), record, overwrite):
         return None
@@ -292,6 +384,8 @@ def detect(rec: Recording, enroll: str, cfg, out: str | Path, *, encoder: str | 
     enrollment = Enrollment(views, fcfg.mvpe_pooling)
     sources = proposal_sources(rec, fcfg, source_name)
     run = FrameDetector(rec, fcfg, enc, enrollment, sources, report)
+    if fcfg.whiten == "all" or fcfg.whiten == enroll:
+        run = FrameDetector(rec, fcfg, enc, enrollment, sources, report, background_whitening(rec, run, fcfg, report))
     files: dict[str, str] = {}
     from concurrent.futures import ThreadPoolExecutor
 
