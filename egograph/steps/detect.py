@@ -228,6 +228,7 @@ class FrameDetector:
         self.rec, self.cfg, self.encoder, self.enrollment, self.sources, self.report = (
             rec, cfg, encoder, enrollment, sources, report)
         self.whitening = whitening
+        self.embedded: dict[int, tuple[list, np.ndarray]] = {}   # frame -> its proposals and embeddings, if done
         if whitening is not None:
             from egograph.frontend.matching import Enrollment
 
@@ -262,7 +263,7 @@ class FrameDetector:
         from egograph.frontend.matching import pick
 
         cfg = self.cfg
-        kept, emb = self.embed_proposals(i, rgb)
+        kept, emb = self.embedded.pop(i) if i in self.embedded else self.embed_proposals(i, rgb)
         t3 = time.perf_counter()
         rows = []
         if kept:
@@ -309,7 +310,8 @@ def detect_frame(rec: Recording, i: int, ts: int, rgb: np.ndarray | None, run: "
 def background_whitening(rec: Recording, run: FrameDetector, cfg, report: DetectReport):
     """Whitening (:func:`egograph.frontend.whiten.fit_whitening`) fitted to the proposals of
     ``cfg.whiten_frames`` PV frames evenly spread over ``rec`` (unreadable frames skipped); None,
-    with a warning naming the recording, when they give fewer than 2 crops."""
+    with a warning naming the recording, when they give fewer than 2 crops. The sampled frames'
+    proposals and embeddings stay in ``run.embedded`` for the detection pass."""
     from egograph.frontend.whiten import fit_whitening
 
     t0 = time.perf_counter()
@@ -319,7 +321,8 @@ def background_whitening(rec: Recording, run: FrameDetector, cfg, report: Detect
     for i in picks:
         rgb = read_pv(rec, int(i))
         if rgb is not None:
-            embs.append(run.embed_proposals(int(i), rgb)[1])
+            run.embedded[int(i)] = run.embed_proposals(int(i), rgb)
+            embs.append(run.embedded[int(i)][1])
     report.seconds = saved      # the sample pass is timed as one stage of its own
     report.seconds["background"] += time.perf_counter() - t0
     emb = np.concatenate(embs) if embs else np.zeros((0, 0), np.float32)
@@ -385,7 +388,9 @@ def detect(rec: Recording, enroll: str, cfg, out: str | Path, *, encoder: str | 
     sources = proposal_sources(rec, fcfg, source_name)
     run = FrameDetector(rec, fcfg, enc, enrollment, sources, report)
     if fcfg.whiten == "all" or fcfg.whiten == enroll:
-        run = FrameDetector(rec, fcfg, enc, enrollment, sources, report, background_whitening(rec, run, fcfg, report))
+        sample = FrameDetector(rec, fcfg, enc, enrollment, sources, report)
+        run = FrameDetector(rec, fcfg, enc, enrollment, sources, report, background_whitening(rec, sample, fcfg, report))
+        run.embedded = sample.embedded    # the sampled frames are not embedded twice
     files: dict[str, str] = {}
     from concurrent.futures import ThreadPoolExecutor
 
