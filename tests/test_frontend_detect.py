@@ -91,7 +91,7 @@ def test_detect_output_reads_as_detections_for_track(detected):
 def test_detect_bad_input_named_and_skipped(tiny_rgb_rec, tmp_path):
     root = tmp_path / "rec"
     shutil.copytree(tiny_rgb_rec, root)
-    cfg = cfg_for(input_size=32, proposals="image")
+    cfg = cfg_for(input_size=32, proposals="image", mvpe_proposals="")
     rec = open_recording(root, cfg)
     pv = sorted((rec.seq_dir / "pv").iterdir())
     pv[3].unlink()

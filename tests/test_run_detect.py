@@ -51,6 +51,7 @@ def config(encoder: Path):
     cfg.frontend.input_size = 32
     cfg.frontend.threads = 1  # one core per Dask worker
     cfg.frontend.proposals = "image"  # (with this encoder no geometry proposal reaches the threshold)
+    cfg.frontend.mvpe_proposals = ""  # the same for MVPE
     return cfg
 
 

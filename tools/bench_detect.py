@@ -127,7 +127,7 @@ def main(argv=None) -> int:
     ap.add_argument("--seed", type=int, default=11)
     ap.add_argument("--runs", default="mvpe:mean", help="comma-separated enrollment[:mvpe pooling] runs, e.g. "
                                                         "mvpe:mean,mvpe:max,svoe")
-    ap.add_argument("--proposals", default=None, help="default frontend.proposals")
+    ap.add_argument("--proposals", default=None, help="default frontend.proposals (MVPE: frontend.mvpe_proposals)")
     ap.add_argument("--workdir", type=Path, default=Path(tempfile.gettempdir()) / "egograph_bench_detect")
     ap.add_argument("--skip-vit", action="store_true")
     ap.add_argument("--cache", type=Path, help="EGOGRAPH_CACHE for the converted encoder (default: a fresh folder)")
@@ -173,8 +173,9 @@ def main(argv=None) -> int:
             t, cpu = time.perf_counter(), time.process_time()
             report = detect(rec, enroll, cfg, out, proposals=args.proposals, overwrite=True, progress=False)
             wall, cpu = time.perf_counter() - t, time.process_time() - cpu
+            source = args.proposals or (enroll == "mvpe" and cfg.frontend.mvpe_proposals) or cfg.frontend.proposals
             print(f"\n[{name}] {' '.join(overrides) or '(defaults)'}\ndetect --enroll {run} --proposals "
-                  f"{args.proposals or cfg.frontend.proposals}: {len(rec)} frames in {wall:.1f} s = "
+                  f"{source}: {len(rec)} frames in {wall:.1f} s = "
                   f"{len(rec) / wall:.2f} frames/s end to end (enrollment and model loading included); CPU "
                   f"{1000 * cpu / len(rec):.0f} ms/frame (all threads; load average {os.getloadavg()[0]:.1f}: "
                   "other processes slow the wall clock, not this)")

@@ -467,7 +467,7 @@ def build_parser() -> argparse.ArgumentParser:
     s.add_argument("--encoder", help="ONNX image encoder (default frontend.encoder; empty: the embedded "
                                      "EfficientNet-lite0)")
     s.add_argument("--proposals", help="geometry, image, geometry+image or an ONNX mask model "
-                                       "(default frontend.proposals)")
+                                       "(default frontend.proposals; for --enroll mvpe frontend.mvpe_proposals)")
     s.add_argument("--guide", type=Path, metavar="RESULTS",
                    help="3D guidance: a results folder of egograph track; in each frame, per instance, the "
                         "above-threshold proposal nearest the projection of its previous frame's prediction "

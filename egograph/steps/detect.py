@@ -354,8 +354,9 @@ def detect(rec: Recording, enroll: str, cfg, out: str | Path, *, encoder: str | 
            overwrite: bool = False, progress: bool = True) -> DetectReport | None:
     """Detect the instances enrolled by ``enroll`` (``svoe`` or ``mvpe``) in every PV frame of
     ``rec``, writing the folder ``out`` (see module doc). ``encoder``/``proposals`` override
-    ``cfg.frontend.encoder``/``.proposals``; ``guide_world``: optional 3D estimates per instance
-    and frame (3D guidance, ``frontend.guidance_radius_px``). Returns the report, or None when
+    ``cfg.frontend.encoder``/``.proposals`` (``.mvpe_proposals`` for MVPE when set);
+    ``guide_world``: optional 3D estimates per instance and frame (3D guidance,
+    ``frontend.guidance_radius_px``). Returns the report, or None when
     ``out`` already holds this exact run. Nothing enrolled, no PV image or a bad encoder raise
     before anything is written."""
     from tqdm import tqdm
@@ -367,7 +368,7 @@ def detect(rec: Recording, enroll: str, cfg, out: str | Path, *, encoder: str | 
     if enroll not in ENROLLMENTS:
         raise EgographError(f"--enroll {enroll}: one of {', '.join(ENROLLMENTS)}")
     fcfg = cfg.frontend
-    source_name = proposals or fcfg.proposals
+    source_name = proposals or (fcfg.mvpe_proposals if enroll == "mvpe" and fcfg.mvpe_proposals else fcfg.proposals)
     record = outputs.run_record("detect", cfg, {"recording": outputs.recording_digest(rec), "enroll": enroll,
                                                 "encoder": encoder_id(cfg, encoder), "proposals": source_name,
                                                 "guided": guide_digest(guide_world) or False},
