@@ -4,10 +4,13 @@ For every PV frame: class-agnostic proposals (:mod:`egograph.frontend.proposals`
 embedded by an ONNX image encoder (:mod:`egograph.frontend.encoder`), compared by cosine similarity
 with every enrolled instance; per instance the most similar proposal at or above
 ``frontend.similarity_threshold`` is kept (top-1 per instance per frame, as the reference
-pipeline). The output folder holds one ``<ts>.txt`` per PV frame in the reference association
-format ``instance x1 y1 x2 y2 det_conf similarity`` (PV pixels; empty without detections), which
-``egograph lift/track --detections DIR`` read, plus ``config.yaml`` and ``egograph.json``; it is
-committed by one rename.
+pipeline); with ``frontend.whiten`` (SVOE by default) it must also pass the whitened gate
+(:mod:`egograph.frontend.whiten`, statistics from the proposals of ``whiten_frames`` sampled
+frames) and the best whitened score is kept; with ``guide_world`` (``--guide``) the proposal
+nearest the instance's projected 3D estimate is kept (within ``guidance_radius_px``). The output
+folder holds one ``<ts>.txt`` per PV frame in the reference association format ``instance x1 y1
+x2 y2 det_conf similarity`` (PV pixels; empty without detections), which ``egograph lift/track
+--detections DIR`` read, plus ``config.yaml`` and ``egograph.json``; it is committed by one rename.
 """
 
 from __future__ import annotations
