@@ -173,7 +173,7 @@ def main(argv=None) -> int:
             t, cpu = time.perf_counter(), time.process_time()
             report = detect(rec, enroll, cfg, out, proposals=args.proposals, overwrite=True, progress=False)
             wall, cpu = time.perf_counter() - t, time.process_time() - cpu
-            source = args.proposals or (enroll == "mvpe" and cfg.frontend.mvpe_proposals) or cfg.frontend.proposals
+            source = args.proposals or cfg.frontend.proposals_for(enroll)
             print(f"\n[{name}] {' '.join(overrides) or '(defaults)'}\ndetect --enroll {run} --proposals "
                   f"{source}: {len(rec)} frames in {wall:.1f} s = "
                   f"{len(rec) / wall:.2f} frames/s end to end (enrollment and model loading included); CPU "

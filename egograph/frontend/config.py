@@ -132,3 +132,8 @@ class FrontendConfig(Checked):
                                             "estimate if within this radius, else the most similar; PV pixels, "
                                             "0 = off. 150 chosen from 50/150/400 on two tuning recordings (guided "
                                             "by graph-causal, SVOE graph P@0.25 20.1/25.0/19.9)", min=0.0)
+
+    def proposals_for(self, enroll: str) -> str:
+        """The proposal source of an enrollment (``svoe`` | ``mvpe``): ``mvpe_proposals`` for MVPE
+        when set, else ``proposals``."""
+        return self.mvpe_proposals if enroll == "mvpe" and self.mvpe_proposals else self.proposals

@@ -223,19 +223,24 @@ def frame_text(rows: list[tuple[int, tuple, float, float]]) -> str:
 
 
 class FrameDetector:
-    """Proposals -> crops -> embeddings -> top-1 per instance, for one PV frame at a time; with a
-    ``whitening`` (:mod:`egograph.frontend.whiten`) a proposal must also pass the whitened gate
-    and the best whitened score is kept."""
+    """Proposals -> crops -> embeddings -> top-1 per instance, for one PV frame at a time; after
+    :meth:`use_whitening` a proposal must also pass the whitened gate and the best whitened score
+    is kept."""
 
-    def __init__(self, rec: Recording, cfg, encoder, enrollment, sources, report: DetectReport, whitening=None):
+    def __init__(self, rec: Recording, cfg, encoder, enrollment, sources, report: DetectReport):
         self.rec, self.cfg, self.encoder, self.enrollment, self.sources, self.report = (
             rec, cfg, encoder, enrollment, sources, report)
-        self.whitening = whitening
+        self.whitening = None
         self.embedded: dict[int, tuple[list, np.ndarray]] = {}   # frame -> its proposals and embeddings, if done
-        if whitening is not None:
-            from egograph.frontend.matching import Enrollment
 
-            self.white = Enrollment({k: whitening(v) for k, v in enrollment.views.items()}, enrollment.pooling)
+    def use_whitening(self, whitening) -> None:
+        """Match with ``whitening`` (:mod:`egograph.frontend.whiten`; None: plain cosine only)."""
+        from egograph.frontend.matching import Enrollment
+
+        self.whitening = whitening
+        if whitening is not None:
+            self.white = Enrollment({k: whitening(v) for k, v in self.enrollment.views.items()},
+                                    self.enrollment.pooling)
 
     def embed_proposals(self, i: int, rgb: np.ndarray) -> tuple[list, np.ndarray]:
         """Frame ``i``'s proposals that give a crop, and their embeddings (P, D, unit rows)."""
@@ -371,7 +376,7 @@ def detect(rec: Recording, enroll: str, cfg, out: str | Path, *, encoder: str | 
     if enroll not in ENROLLMENTS:
         raise EgographError(f"--enroll {enroll}: one of {', '.join(ENROLLMENTS)}")
     fcfg = cfg.frontend
-    source_name = proposals or (fcfg.mvpe_proposals if enroll == "mvpe" and fcfg.mvpe_proposals else fcfg.proposals)
+    source_name = proposals or fcfg.proposals_for(enroll)
     record = outputs.run_record("detect", cfg, {"recording": outputs.recording_digest(rec), "enroll": enroll,
                                                 "encoder": encoder_id(cfg, encoder), "proposals": source_name,
                                                 "guided": guide_digest(guide_world) or False},
@@ -391,10 +396,8 @@ def detect(rec: Recording, enroll: str, cfg, out: str | Path, *, encoder: str | 
     enrollment = Enrollment(views, fcfg.mvpe_pooling)
     sources = proposal_sources(rec, fcfg, source_name)
     run = FrameDetector(rec, fcfg, enc, enrollment, sources, report)
-    if fcfg.whiten == "all" or fcfg.whiten == enroll:
-        sample = FrameDetector(rec, fcfg, enc, enrollment, sources, report)
-        run = FrameDetector(rec, fcfg, enc, enrollment, sources, report, background_whitening(rec, sample, fcfg, report))
-        run.embedded = sample.embedded    # the sampled frames are not embedded twice
+    if fcfg.whiten in ("all", enroll):
+        run.use_whitening(background_whitening(rec, run, fcfg, report))
     files: dict[str, str] = {}
     from concurrent.futures import ThreadPoolExecutor
 
