@@ -4,9 +4,10 @@ For every PV frame: class-agnostic proposals (:mod:`egograph.frontend.proposals`
 embedded by an ONNX image encoder (:mod:`egograph.frontend.encoder`), compared by cosine similarity
 with every enrolled instance; per instance the most similar proposal at or above
 ``frontend.similarity_threshold`` is kept (top-1 per instance per frame, as the reference
-pipeline); with ``frontend.whiten`` (SVOE by default) it must also pass the whitened gate
-(:mod:`egograph.frontend.whiten`, statistics from the proposals of ``whiten_frames`` sampled
-frames) and the best whitened score is kept; with ``guide_world`` (``--guide``) the proposal
+pipeline); with ``frontend.exclusive`` (default) only among the proposals that are more similar to
+that instance than to any other; with ``frontend.whiten`` (SVOE by default) it must also pass the
+whitened gate (:mod:`egograph.frontend.whiten`, statistics from the proposals of ``whiten_frames``
+sampled frames) and the best whitened score is kept; with ``guide_world`` (``--guide``) the proposal
 nearest the instance's projected 3D estimate is kept (within ``guidance_radius_px``). The output
 folder holds one ``<ts>.txt`` per PV frame in the reference association format ``instance x1 y1
 x2 y2 det_conf similarity`` (PV pixels; empty without detections), which ``egograph lift/track
@@ -276,19 +277,32 @@ class FrameDetector:
         rows = []
         if kept:
             boxes = [p.box for p in kept]
+            plain = self.enrollment.similarity(emb)
             white = self.white.similarity(self.whitening(emb)) if self.whitening is not None else None
-            for inst, sims in self.enrollment.similarity(emb).items():
+            score = plain if white is None else white
+            owner = exclusive_owner(score) if cfg.exclusive else None
+            for inst, sims in plain.items():
                 g = (guides or {}).get(inst)
+                s = sims if owner is None else np.where(owner == inst, sims, -np.inf)
                 if white is None:
-                    k = pick(sims, boxes, cfg.similarity_threshold, g, cfg.guidance_radius_px)
+                    k = pick(s, boxes, cfg.similarity_threshold, g, cfg.guidance_radius_px)
                 else:   # both gates; among the proposals passing them the best whitened score
-                    score = np.where(sims >= cfg.similarity_threshold, white[inst], -np.inf)
-                    k = pick(score, boxes, cfg.whiten_threshold, g, cfg.guidance_radius_px)
+                    w = np.where(s >= cfg.similarity_threshold, white[inst], -np.inf)
+                    k = pick(w, boxes, cfg.whiten_threshold, g, cfg.guidance_radius_px)
                 if k is not None:
                     rows.append((inst, kept[k].box, kept[k].conf, float(sims[k])))
         self.report.seconds["matching"] += time.perf_counter() - t3
         self.report.proposals += len(kept)
         return sorted(rows)
+
+
+def exclusive_owner(scores: dict[int, np.ndarray]) -> np.ndarray:
+    """Per proposal, the instance it is most similar to (``scores``: instance -> (P,) similarities):
+    one proposal shows one object, so with ``frontend.exclusive`` it may be the detection of that
+    instance only. Ties go to the smaller instance id."""
+    ids = sorted(scores)
+    table = np.stack([scores[k] for k in ids])            # (K, P)
+    return np.asarray(ids)[np.argmax(table, axis=0)]
 
 
 def read_pv(rec: Recording, i: int) -> np.ndarray | None:
