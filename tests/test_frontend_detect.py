@@ -188,9 +188,9 @@ def test_whitened_matching_keeps_a_subset_of_the_plain_matches(detected, tmp_pat
     from egograph.steps.lift import load_detections
 
     rec, _, _, _ = detected
-    cfg = cfg_for(exclusive=False)    # exclusivity may move a proposal to another instance once whitened
+    cfg = cfg_for(exclusive="none")   # exclusivity may move a proposal to another instance once whitened
     detect(rec, "mvpe", cfg, tmp_path / "plain", progress=False)
-    wcfg = cfg_for(whiten="all", whiten_frames=20, exclusive=False)
+    wcfg = cfg_for(whiten="all", whiten_frames=20, exclusive="none")
     report = detect(rec, "mvpe", wcfg, tmp_path / "white", progress=False)
     plain = load_detections(rec, str(tmp_path / "plain"), cfg)
     white = load_detections(rec, str(tmp_path / "white"), wcfg)
@@ -201,7 +201,7 @@ def test_whitened_matching_keeps_a_subset_of_the_plain_matches(detected, tmp_pat
 
 
 def test_exclusive_matching_gives_each_proposal_one_instance(detected, tmp_path):
-    """frontend.exclusive (default): a proposal is the detection of the instance it is most similar
+    """frontend.exclusive (MVPE by default): a proposal is the detection of the instance it is most similar
     to only, so no box is detected as two instances in one frame; against matching each instance
     on its own (the reference pipeline) it drops look-alike matches, most of the false ones."""
     from egograph.steps.detect import exclusive_owner
@@ -210,8 +210,8 @@ def test_exclusive_matching_gives_each_proposal_one_instance(detected, tmp_path)
     owner = exclusive_owner({0: np.array([0.9, 0.1, 0.5]), 2: np.array([0.5, 0.7, 0.5])})
     assert owner.tolist() == [0, 2, 0]                                 # ties: the smaller id
     rec, cfg, out, _ = detected
-    assert cfg.frontend.exclusive
-    detect(rec, "mvpe", cfg_for(exclusive=False), tmp_path / "each", progress=False)
+    assert cfg.frontend.exclusive == "mvpe"
+    detect(rec, "mvpe", cfg_for(exclusive="none"), tmp_path / "each", progress=False)
     def shared(folder):
         dets = load_detections(rec, str(folder), cfg)
         return sum(len(v) - len({(d.box.x_min, d.box.y_min, d.box.x_max, d.box.y_max) for d in v})

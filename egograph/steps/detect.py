@@ -4,8 +4,8 @@ For every PV frame: class-agnostic proposals (:mod:`egograph.frontend.proposals`
 embedded by an ONNX image encoder (:mod:`egograph.frontend.encoder`), compared by cosine similarity
 with every enrolled instance; per instance the most similar proposal at or above
 ``frontend.similarity_threshold`` is kept (top-1 per instance per frame, as the reference
-pipeline); with ``frontend.exclusive`` (default) only among the proposals that are more similar to
-that instance than to any other; with ``frontend.whiten`` (SVOE by default) it must also pass the
+pipeline); with ``frontend.exclusive`` (MVPE by default) only among the proposals that are more
+similar to that instance than to any other; with ``frontend.whiten`` (SVOE by default) it must also pass the
 whitened gate (:mod:`egograph.frontend.whiten`, statistics from the proposals of ``whiten_frames``
 sampled frames) and the best whitened score is kept; with ``guide_world`` (``--guide``) the proposal
 nearest the instance's projected 3D estimate is kept (within ``guidance_radius_px``). The output
@@ -232,6 +232,7 @@ class FrameDetector:
         self.rec, self.cfg, self.encoder, self.enrollment, self.sources, self.report = (
             rec, cfg, encoder, enrollment, sources, report)
         self.whitening = None
+        self.exclusive = False       # frontend.exclusive names this enrollment: set by detect()
         self.embedded: dict[int, tuple[list, np.ndarray]] = {}   # frame -> its proposals and embeddings, if done
 
     def use_whitening(self, whitening) -> None:
@@ -280,7 +281,7 @@ class FrameDetector:
             plain = self.enrollment.similarity(emb)
             white = self.white.similarity(self.whitening(emb)) if self.whitening is not None else None
             score = plain if white is None else white
-            owner = exclusive_owner(score) if cfg.exclusive else None
+            owner = exclusive_owner(score) if self.exclusive else None
             for inst, sims in plain.items():
                 g = (guides or {}).get(inst)
                 s = sims if owner is None else np.where(owner == inst, sims, -np.inf)
@@ -410,6 +411,7 @@ def detect(rec: Recording, enroll: str, cfg, out: str | Path, *, encoder: str | 
     enrollment = Enrollment(views, fcfg.mvpe_pooling)
     sources = proposal_sources(rec, fcfg, source_name)
     run = FrameDetector(rec, fcfg, enc, enrollment, sources, report)
+    run.exclusive = fcfg.exclusive in ("all", enroll)
     if fcfg.whiten in ("all", enroll):
         run.use_whitening(background_whitening(rec, run, fcfg, report))
     files: dict[str, str] = {}
