@@ -228,11 +228,12 @@ class FrameDetector:
     :meth:`use_whitening` a proposal must also pass the whitened gate and the best whitened score
     is kept."""
 
-    def __init__(self, rec: Recording, cfg, encoder, enrollment, sources, report: DetectReport):
+    def __init__(self, rec: Recording, cfg, encoder, enrollment, sources, report: DetectReport,
+                 exclusive: bool = False):
         self.rec, self.cfg, self.encoder, self.enrollment, self.sources, self.report = (
             rec, cfg, encoder, enrollment, sources, report)
+        self.exclusive = exclusive   # a proposal goes to the instance it is most similar to only
         self.whitening = None
-        self.exclusive = False       # frontend.exclusive names this enrollment: set by detect()
         self.embedded: dict[int, tuple[list, np.ndarray]] = {}   # frame -> its proposals and embeddings, if done
 
     def use_whitening(self, whitening) -> None:
@@ -410,8 +411,7 @@ def detect(rec: Recording, enroll: str, cfg, out: str | Path, *, encoder: str | 
     report.enrolled = {k: len(v) for k, v in views.items()}
     enrollment = Enrollment(views, fcfg.mvpe_pooling)
     sources = proposal_sources(rec, fcfg, source_name)
-    run = FrameDetector(rec, fcfg, enc, enrollment, sources, report)
-    run.exclusive = fcfg.exclusive in ("all", enroll)
+    run = FrameDetector(rec, fcfg, enc, enrollment, sources, report, exclusive=fcfg.exclusive in ("all", enroll))
     if fcfg.whiten in ("all", enroll):
         run.use_whitening(background_whitening(rec, run, fcfg, report))
     files: dict[str, str] = {}
