@@ -119,7 +119,7 @@ def test_file_errors_name_file_line_and_value(tmp_path):
     assert message(SynthConfig, path=p).startswith(f"{p}:2: not valid YAML")
     missing = message(SynthConfig, path=tmp_path / "none.yaml")
     assert missing.startswith(f"{tmp_path / 'none.yaml'}: config not found (no file {tmp_path / 'none.yaml'}")
-    assert "packaged configs: default, synth/mvpe, synth/svoe, synth/tiny" in missing
+    assert "packaged configs: default, frontend-mvpe, synth/mvpe, synth/svoe, synth/tiny" in missing
 
 
 def test_override_errors_are_not_blamed_on_the_file(tmp_path):
@@ -212,3 +212,18 @@ def test_to_yaml_round_trip(tmp_path, cls, overrides):
         if not line.lstrip().startswith("#"):
             assert i > 0 and lines[i - 1].lstrip().startswith("#"), line
     assert "  # 'robust' (mesh-unwrapped" in text or cls is SynthConfig
+
+
+def test_the_frontend_mvpe_configuration_is_the_default_with_stricter_graph_stands():
+    """configs/frontend-mvpe.yaml (what `egograph detect --enroll mvpe` tells the user to track
+    with) changes the graph's stand knobs only, so the paper's pipeline (lift, baselines, front-end)
+    runs the same with either file."""
+    from egograph.core.config import to_dict
+    from egograph.core.resources import packaged_config_or_error
+
+    preset = load_config(EgographConfig, packaged_config_or_error("frontend-mvpe"))
+    default = load_config(EgographConfig, packaged_config_or_error("default"))
+    assert (preset.graph.min_observations, preset.graph.min_inlier_share) == (6, pytest.approx(0.8))
+    a, b = to_dict(preset), to_dict(default)
+    changed = {(s, k) for s in a for k in a[s] if a[s][k] != b[s][k]}
+    assert changed == {("graph", "min_observations"), ("graph", "min_inlier_share")}

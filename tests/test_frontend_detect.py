@@ -4,6 +4,7 @@ visible (measured against the generator's true boxes), its output is what ``egog
 
 from __future__ import annotations
 
+import shlex
 import shutil
 import warnings
 from pathlib import Path
@@ -167,7 +168,13 @@ def test_guidance_from_a_results_folder_keeps_true_detections(detected, tmp_path
         return main(["detect", str(rec.root), "--enroll", "mvpe", "--out", str(out_dir), "--quiet", *extra])
 
     radius = ["--set", "frontend.guidance_radius_px=150"]
+    capsys.readouterr()
     assert run(tmp_path / "guided", "--guide", str(tmp_path / "truth"), *radius) == 0
+    # the summary names the configuration to track MVPE detections with, in a command that runs
+    hint = capsys.readouterr().out.split("track them with: ")[1].splitlines()[0]
+    assert "--config frontend-mvpe" in hint
+    assert main([*shlex.split(hint.replace("RESULTS", str(tmp_path / "tracked")))[1:], "--quiet"]) == 0
+    assert (tmp_path / "tracked" / "egograph.json").is_file()
     _, true_u, false_u = recall_and_false(rec, out)
     _, true_g, false_g = recall_and_false(rec, tmp_path / "guided")
     print(f"unguided {true_u} true / {false_u} false; guided by the truth {true_g} / {false_g}")

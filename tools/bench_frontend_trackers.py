@@ -3,7 +3,7 @@
 benchmark recordings, then the paper's pipeline (memory + reference lifting) against egograph's
 graph tracker (robust lifting) on the same detections, beside the simulated front-end's sets.
 
-    .venv/bin/python tools/bench_frontend_trackers.py --seeds 21 22 --frames 600 [--cache DIR]
+    .venv/bin/python tools/bench_frontend_trackers.py --seeds 21 22 --frames 600 [--cache DIR] [--config frontend-mvpe]
 
 Recordings come from egograph.synth.benchset.rgb_benchmark_set (PV RGB, cached); detection folders
 are cached beside them (``detect`` skips work already done). Per detection source
@@ -23,7 +23,7 @@ from pathlib import Path
 
 from egograph.core.config import load_config
 from egograph.core.errors import InputError
-from egograph.core.resources import default_config, synth_config
+from egograph.core.resources import config_argument, default_config, synth_config
 from egograph.eval.protocol import THRESHOLDS, Counts
 from egograph.geometry.observations import Observations
 from egograph.steps.detect import detect, guides_from_predictions
@@ -61,13 +61,15 @@ def main() -> None:
     ap.add_argument("--tag", default="", help="detection and observation folders under this sub-folder of the "
                                              "cache (front-end variants side by side)")
     ap.add_argument("--no-sot", action="store_true", help="leave out the SOT (CSRT) row")
+    ap.add_argument("--config", type=config_argument, default=default_config(),
+                    help="egograph configuration: a YAML file or a packaged name (e.g. frontend-mvpe; default: default)")
     ap.add_argument("--set", dest="overrides", action="append", default=[], metavar="KEY=VALUE",
                     help="egograph configuration override (e.g. frontend.similarity_threshold=0.65)")
     args = ap.parse_args()
     os.environ.setdefault("EGOGRAPH_CACHE", str(args.cache / "models"))
 
     roots = rgb_benchmark_set(args.seeds, args.frames, config=synth_config("svoe"), cache=args.cache)
-    base = load_config(EgographConfig, default_config(), args.overrides)
+    base = load_config(EgographConfig, args.config, args.overrides)
     radius = base.frontend.guidance_radius_px
     pooled: dict = {}
     shares: dict = {}
@@ -97,7 +99,7 @@ def main() -> None:
                 for label, tracker, mode in PIPELINES:
                     if source.startswith("SOT") and tracker != "memory":
                         continue  # the paper's SOT row: its boxes lifted and kept in memory
-                    cfg = load_config(EgographConfig, default_config(), [*args.overrides, f"lift.mode={mode}"])
+                    cfg = load_config(EgographConfig, args.config, [*args.overrides, f"lift.mode={mode}"])
                     tag = source.split()[0].lower() + ("_g" if "guidance" in source else "")
                     try:
                         obs, _ = lift(rec, spec, cfg, args.cache / "obs" / args.tag / root.name / f"{tag}_{det_set}_{mode}.npz",

@@ -195,6 +195,13 @@ def cmd_detect(args) -> int:
         return 0
     con.print(f"detections ({args.enroll}) -> {args.out}")
     con.print(report.summary())
+    if args.enroll == "mvpe":
+        # the photo matcher's clutter stands need the graph knobs of the packaged frontend-mvpe file
+        import shlex
+
+        con.print(f"track them with: egograph track {shlex.quote(str(args.rec))} --tracker graph --detections "
+                  f"{shlex.quote(str(args.out))} "
+                  "--config frontend-mvpe --out RESULTS", soft_wrap=True)
     return 0
 
 
