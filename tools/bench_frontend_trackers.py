@@ -78,11 +78,11 @@ def main() -> None:
     for root in roots:
         rec = open_recording(root, base)
         for det_set in args.sets:
-            frames += len(rec)
             out = args.cache / "detect" / args.tag / root.name / det_set
             t = time.perf_counter()
-            detect(rec, det_set, base, out, progress=True)
-            t_detect += time.perf_counter() - t
+            if detect(rec, det_set, base, out, progress=True) is not None:  # None: cached, not timed
+                t_detect += time.perf_counter() - t
+                frames += len(rec)
             sources = [("simulated", det_set, rec.detections_dir(det_set)), ("detect", str(out), out)]
             if det_set == "svoe" and not args.no_sot:
                 sot_dir = args.cache / "sot" / root.name
@@ -120,8 +120,8 @@ def main() -> None:
                         detect(rec, det_set, base, out_g, guide_world=guides_from_predictions(rec, result.per_frame),
                                progress=False)
                         sources.append(("detect + 3D guidance", str(out_g), out_g))
-    print(f"\nRGB recordings: seeds {', '.join(map(str, args.seeds))} x {args.frames} frames; "
-          f"detect {frames / max(t_detect, 1e-9):.1f} frames/s over {frames} frames\n")
+    speed = f"detect {frames / t_detect:.1f} frames/s over {frames} frames" if frames else "detections cached"
+    print(f"\nRGB recordings: seeds {', '.join(map(str, args.seeds))} x {args.frames} frames; {speed}\n")
     print("| source | set | true / all detections | tracker | P@0.25 | P@1.5 | R@0.25 | R@1.5 | L2 (m) |")
     print("|---|---|---|---|---|---|---|---|---|")
     for (source, det_set, label), c in pooled.items():
