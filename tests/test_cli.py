@@ -62,10 +62,11 @@ def true_stands(rec, intervals) -> list[bool]:
 
 
 @pytest.mark.slow
-@pytest.mark.xfail(strict=True, reason="generator revision 4: on the tiny recording a run of 13 persistent clutter "
-                                       "matches of mug_2 (1.5 s, one place) forms a false stand at confidence 0.86")
 def test_confident_graph_intervals_are_true_stands(tiny_rec, tmp_path):
-    """Every interval the graph reports with confidence >= 0.8 is a true stand."""
+    """Every interval the graph reports with confidence >= 0.8 is a true stand: on the tiny
+    recording mug_2 is only ever matched on a clutter object (19 matches at scores 0.60-0.79, 13 at
+    one place), which the graph reports (nothing better is known) at a confidence the low matcher
+    scores of that place bring down (graph.places: place reality)."""
     from egograph.track.intervals import read_intervals_json
 
     rec = Recording.open(tiny_rec)
@@ -73,6 +74,9 @@ def test_confident_graph_intervals_are_true_stands(tiny_rec, tmp_path):
                  "--out", str(tmp_path / "graph")]) == 0
     intervals, _ = read_intervals_json(tmp_path / "graph" / "intervals.json")
     assert all(ok for ok, iv in zip(true_stands(rec, intervals), intervals) if iv.confidence >= 0.8)
+    assert sum(iv.confidence >= 0.8 for iv in intervals) >= 3
+    mug_2 = [iv for iv in intervals if iv.instance == 1]
+    assert mug_2 and all(iv.confidence < 0.2 for iv in mug_2)
 
 
 @pytest.mark.slow

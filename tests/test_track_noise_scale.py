@@ -58,15 +58,15 @@ def frames_right(res, ts, radius_m: float = 0.15) -> float:
 @pytest.mark.parametrize("seed", [0, 1, 2])
 def test_a_noisy_front_end_gets_a_wider_scale_and_its_stands_back(seed):
     """Lifted points scattering by 0.15 m (2-4x the default sigmas at these ranges): with the
-    default sigmas the gate rejects most of them and the stands fall apart; the fitted scale
-    finds both, and their covariances cover the error."""
+    default sigmas the gate rejects most of them (the place chain still finds both places, from
+    their cores); the fitted scale takes them in, and the covariances cover the error."""
     obs, ts = make_obs(noisy_scenario(0.15, seed)), stamps()
     fixed = graph_tracker(obs, ts, GraphConfig(negative_evidence=False, noise=dataclasses.replace(
         GraphConfig().noise, auto_scale=False)))
     auto = graph_tracker(obs, ts, GraphConfig(negative_evidence=False))
     assert fixed.metadata["noise_scale"] == 1.0 and auto.metadata["noise_scale"] > 2.0
     assert frames_right(auto, ts) > 0.97
-    assert frames_right(fixed, ts) < frames_right(auto, ts) - 0.1
+    assert frames_right(fixed, ts) <= frames_right(auto, ts)
     assert sum(iv.n_observations for iv in fixed.intervals) < 0.5 * sum(iv.n_observations for iv in auto.intervals)
     for iv in auto.intervals:
         truth = A if np.linalg.norm(np.array(iv.xyz) - A) < np.linalg.norm(np.array(iv.xyz) - B) else B

@@ -34,5 +34,5 @@ def causal_tracker(obs: Observations, t_frames: np.ndarray, cfg: GraphConfig, id
         if st is None:
             solutions.append(InstanceSolution(i, ivs))
         else:
-            solutions.append(InstanceSolution(i, ivs, np.array(st.switches), st.n_rows, st.k + 1))
+            solutions.append(InstanceSolution(i, ivs, np.zeros(0), st.n_rows, len(st.places), places=list(st.places)))
     return per_frame, intervals, solutions, list(trk.scales)

@@ -113,6 +113,60 @@ class NegativeConfig(Checked):
 
 
 @dataclass
+class PlacesConfig(Checked):
+    segment_min_inliers: int = knob(2, "offline: a segment of the chain with at least this many inliers (and not "
+                                       "moving with the head) may found or join a place", min=1)
+    overlap: float = knob(0.5, "offline: a segment joins a place that already explains (inlier gate) at least this "
+                               "share of the segment's inliers or of the place's: both are one location", min=0.0,
+                          max=1.0)
+    support_min_inliers: int = knob(10, "offline: a place with fewer inliers than this must have a surface of the "
+                                        "scene mesh under it (graph.max_support_gap_m); a few alias-wrapped or "
+                                        "hand-held detections in mid-air are not a place", min=0)
+    true_share: float = knob(0.6, "place chain: prior probability that an accepted detection scoring at least "
+                                  "confident_score is the instance (the rest are false matches)", gt=0.0, lt=1.0)
+    confident_score: float = knob(0.67, "place chain: a detection scoring at least this has prior probability "
+                                        "true_share of being the instance, below it weak_true_share", min=-1.0,
+                                  max=1.0)
+    weak_true_share: float = knob(0.3, "place chain: prior probability that an accepted detection scoring below "
+                                       "confident_score is the instance", gt=0.0, lt=1.0)
+    carry_detect_rate: float = knob(0.2, "place chain: probability that a carried object (in front of the eyes) is "
+                                         "detected in a frame; each frame without it makes a carry less likely",
+                                    min=0.0, lt=1.0)
+    false_density: float = knob(0.0167, "place chain: density of false matches over the scene, per m^3 (about one "
+                                        "over the volume where detections land)", gt=0.0)
+    lookalike_share: float = knob(0.5, "place chain: share of false matches that land at another instance's place "
+                                       "(a look-alike) rather than anywhere", min=0.0, lt=1.0)
+    false_spot_concentration: float = knob(10.0, "place chain: the look-alike share of false matches lands at a known "
+                                                 "spot in proportion to its inliers, or at a new spot with this "
+                                                 "weight (a Chinese restaurant process): a young place is not yet "
+                                                 "where false matches gather", gt=0.0)
+    carry_density: float = knob(0.5, "place chain: density of the detections of a carried object within "
+                                     "graph.carry_range_m of the camera, per m^3", gt=0.0)
+    pick_up_rate: float = knob(0.02, "place chain: pick-ups per second of a standing object", gt=0.0, lt=1.0)
+    carry_s: float = knob(5.0, "place chain: mean time an object is carried, s", gt=0.0)
+    unseen_put_down: float = knob(0.3, "place chain: share of carries that end at a place the object is never seen at "
+                                       "(reported where the hand last held it)", min=0.0, max=1.0)
+    put_back: float = knob(0.1, "place chain: share of carries that end where they began (put back)", min=0.0,
+                           max=1.0)
+    unseen_move_rate: float = knob(0.002, "place chain: moves per second from one place to another with no carry seen",
+                                   min=0.0, lt=1.0)
+    min_answer_probability: float = knob(0.3, "causal mode: the newest frame is answered only when its most probable "
+                                               "state has at least this share of the frame's max-product scores (a "
+                                               "lone match at a new place, or at another instance's, is as likely "
+                                               "false); a lagged answer takes the later evidence instead", min=0.0,
+                                         max=1.0)
+    empty_likelihood: float = knob(0.01, "causal mode: a frame where depth shows the place empty makes standing there "
+                                         "this many times less likely (graph.negative)", gt=0.0, max=1.0)
+    start_unknown: float = knob(0.05, "place chain: prior probability that at the first frame the object is carried "
+                                      "or at an unseen place (the rest is spread over its places)", gt=0.0, lt=1.0)
+
+    def cross_check(self) -> None:
+        # the shares of a carry's end must leave room for the object's other places
+        if self.put_back + self.unseen_put_down > 1.0:
+            raise rule_error(self, "{} + {} must be <= 1", "put_back", "unseen_put_down")
+
+
+@dataclass
 class GraphConfig(Checked):
     score_threshold: float = _score_threshold("minimum matcher score of a detection the graph uses (the paper's 0.6; "
                                               "the same rule as track.score_threshold, set apart)")
@@ -134,63 +188,53 @@ class GraphConfig(Checked):
                                        "grows linearly with the recording, not with the longest run of candidates",
                                        min=1)
     break_below: float = knob(0.5, "a switch below this value (0-1) is a motion break", min=0.0, max=1.0)
-    min_observations: int = knob(3, "fewest inlier detections a stationary interval needs", min=1)
+    min_observations: int = knob(3, "fewest inlier detections a stand of the chain, and a place over the whole "
+                                    "recording, need", min=1)
     min_inlier_share: float = knob(0.6, "share of a segment's detections its centre must explain to be stationary",
                                    min=0.0, max=1.0)
     inlier_chi2: float = knob(11.34, "squared Mahalanobis gate of an inlier (chi2, 3 dof, 99 %)", gt=0.0)
-    merge_radius_m: float = knob(0.12, "stationary segments whose centres are closer than this merge into one "
-                                       "interval when the segments between them are weaker, metres", min=0.0)
+    merge_radius_m: float = knob(0.12, "offline: segments whose centres are closer than this are one place (as are "
+                                       "segments that share most inliers), metres", min=0.0)
     carry_range_m: float = knob(0.9, "a detection this close to the camera may be an object in hand, metres", min=0.0)
-    min_carry_observations: int = knob(2, "a non-stationary segment with at least this many detections within "
-                                          "carry_range_m is a carry (it ends the interval before it); with fewer "
-                                          "it is taken for scattered false matches and ignored", min=1)
-    pickup_radius_m: float = knob(3.0, "a carry must start within this of the stand before it or end within this "
-                                        "of the stand after it (pick-up, put-down; the first detections of a "
-                                        "carry often come a few steps later, after the motion blur), metres", min=0.0)
-    carry_spread_m: float = knob(0.03, "a near segment whose detections spread more than this (median, metres) "
-                                       "and more than their offsets to the head do is an object in hand", min=0.0)
-    exclusion_radius_m: float = knob(0.15, "offline: a stand of one instance within this distance of another "
-                                           "instance's better-supported interval at the same time is a look-alike "
-                                           "confusion and is dropped, metres (0 disables; causal mode: see "
-                                           "causal_exclusion)", min=0.0)
-    backfill_max_s: float = knob(3.0, "after a carried stretch, an interval starts at most this long before its "
-                                      "first detection, s", min=0.0)
+    min_carry_observations: int = knob(2, "detections within carry_range_m moving with the head (a segment of the "
+                                          "chain offline, the last two seconds online) needed before they count "
+                                          "as an object in hand", min=1)
+    carry_spread_m: float = knob(0.03, "near detections that spread more than this (median, metres) and more than "
+                                       "their offsets to the head do are an object in hand", min=0.0)
+    exclusion_radius_m: float = knob(0.15, "offline: a place of one instance within this distance of another "
+                                           "instance's place with more inliers over overlapping times is that "
+                                           "instance's (a look-alike confusion), metres; 0 disables", min=0.0)
     covariance_floor_m: float = knob(0.03, "isotropic sigma added to every interval covariance for errors shared "
                                            "by its detections (pose drift, surface-to-centre bias), metres", min=0.0)
-    confidence_scale: float = knob(5.0, "inlier count at which confidence reaches 63 % of the inlier share", gt=0.0)
     alias_rounds: int = knob(1, "re-solves after re-choosing each detection's AHAT alias candidate", min=0)
     max_iterations: int = knob(50, "Levenberg-Marquardt iteration limit", min=1)
-    max_support_gap_m: float = knob(SUPPORT_GAP_M, "a stand seen only from within carry_range_m needs the scene mesh "
-                                                   "at most this far below its centre (an object held still in hand "
-                                                   "is in mid-air), metres; 0 disables; needs the recording's mesh "
-                                                   "(the quantity of lift.max_support_gap_m, tested on stands)",
+    max_support_gap_m: float = knob(SUPPORT_GAP_M, "a stand of the chain seen only from within carry_range_m, and a "
+                                                   "place with fewer than places.support_min_inliers inliers, need "
+                                                   "the scene mesh at most this far below its centre (an object held "
+                                                   "still in hand is in mid-air), metres; 0 disables; needs the "
+                                                   "recording's mesh (the quantity of lift.max_support_gap_m)",
                                     min=0.0)
-    negative_evidence: bool = knob(True, "end intervals where depth shows the place empty, and keep apart stands "
-                                         "at one place with such evidence between them (reads depth frames)")
+    negative_evidence: bool = knob(True, "where depth shows the place empty, the object is gone: offline an "
+                                         "interval ends there, online standing there becomes "
+                                         "places.empty_likelihood times less likely (reads depth frames)")
     lag_s: float = knob(0.0, "causal mode (graph-causal, egograph.track.online): the answer for a frame may use the "
                              "frames up to this many seconds after it (0: strictly causal; large: towards offline), s",
                         min=0.0)
-    provisional_min_observations: int = knob(2, "causal mode: inlier detections of a place not yet confirmed as a stand "
-                                                "before it is reported as the last-seen place (fewer keep the previous "
-                                                "answer)", min=1)
-    first_min_observations: int = knob(1, "causal mode: inlier detections an instance's first answer needs (1: answer "
-                                          "from its first detection, as the memory baseline does)", min=1)
-    provisional_min_score: float = knob(0.67, "causal mode: a place not yet confirmed as a stand is answered only when "
-                                              "one of its inlier detections has at least this matcher score (a lone "
-                                              "weak match is as likely a look-alike as the object)", min=-1.0, max=1.0)
-    causal_exclusion: bool = knob(True, "causal mode: a new place of one instance within exclusion_radius_m of "
-                                         "another instance's current answer with more inliers is taken for a "
-                                         "look-alike confusion and not answered (the causal form of the offline rule)")
-    put_down_after_s: float = knob(2.0, "causal mode: a carried object unseen for this long is answered where the hand "
-                                        "last held it (put down near there), at low confidence, until seen again or "
-                                        "depth shows the place empty; 0: nothing until seen again, s", min=0.0)
-    put_down_sigma_m: float = knob(0.3, "causal mode: position sigma of that put-down guess, metres", gt=0.0)
-    online_max_rows: int = knob(300, "causal mode: newest detections of the trailing segment kept per instance "
-                                     "(bounds memory and time per frame)", min=1)
-    online_window_chunks: int = knob(40, "causal mode: each instance's iSAM2 is restarted after this many chunks, "
-                                         "with the newest landmark's marginal as a prior (bounded history)", min=2)
+    put_down_after_s: float = knob(2.0, "causal mode: after a carry, an object at a place not seen yet is answered "
+                                        "where the hand last held it (put down near there), at low confidence, once "
+                                        "this long has passed since the last detection in hand; 0: never, s",
+                                   min=0.0)
+    put_down_sigma_m: float = knob(0.3, "position sigma of an answer where the hand last held the object, metres",
+                                   gt=0.0)
+    online_max_rows: int = knob(300, "causal mode: newest inliers kept per place (for the noise-scale fit; bounds "
+                                     "memory)", min=1)
+    online_max_places: int = knob(32, "causal mode: places kept per instance (beyond, the weakest that no state leads "
+                                      "is forgotten: bounds time per frame)", min=1)
     noise: DetectionNoiseConfig = section(DetectionNoiseConfig, "detection factor noise and robust kernel")
     negative: NegativeConfig = section(NegativeConfig, "negative evidence from depth")
+    places: PlacesConfig = section(PlacesConfig, "offline: places pooled across motion breaks and the place chain "
+                                                 "that says which one holds the instance at every frame "
+                                                 "(egograph.track.places)")
 
 
 @dataclass

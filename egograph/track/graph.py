@@ -1,6 +1,6 @@
-"""The factor-graph tracker: landmarks per chunk, switchable motion breaks, intervals with covariance.
+"""The factor-graph tracker: landmarks per chunk, switchable motion breaks, places, the place chain.
 
-Per instance (camera poses fixed, so instances are independent graphs):
+Per instance (camera poses fixed, so instances are independent graphs until their places meet):
 
 1. *Observations*: lifted detections (world frame, metres) with score >= ``score_threshold``.
 2. *Chunks*: the instance's timeline is cut on a fixed grid of ``chunk_s`` seconds; each
@@ -9,32 +9,30 @@ Per instance (camera poses fixed, so instances are independent graphs):
    (:mod:`egograph.track.detection_factor`).
 4. *Motion breaks*: consecutive landmarks are joined by a switchable zero-motion factor
    (:mod:`egograph.track.switchable`), or its DCS closed form (``switches: dcs``).
-5. *Solve*: batch Levenberg-Marquardt (offline) or iSAM2 chunk by chunk (causal: a
-   frame's prediction uses only observations up to that frame).
-6. *Alias*: after a first solve each observation takes the AHAT alias candidate nearest
-   its landmark, and the graph is solved again.
-7. *Segments*: runs of chunks whose switches stay on. A segment whose robust centre
-   explains most of its observations (inlier share) with enough of them is *stationary*;
-   the rest (carried objects, scattered false matches) are *dynamic* and predict nothing.
-   Stationary segments at the same place (within ``merge_radius_m``) separated only by
-   weaker segments merge: the weaker ones were false matches.
-8. *Intervals*: each stationary segment is re-solved as one landmark; its covariance is
-   the GTSAM marginal plus ``covariance_floor_m`` squared (errors shared by all its
-   observations: pose drift, surface-to-centre bias). Time extent policy:
+5. *Solve*: batch Levenberg-Marquardt (GTSAM), with the AHAT alias re-chosen per observation
+   and the graph solved again; the detection noise scale is fitted from the chain's stands
+   (:mod:`egograph.track.noise_scale`) and everything solved again until it settles.
+6. *Segments*: runs of chunks whose switches stay on (:mod:`egograph.track.segments`).
+7. *Places* (:mod:`egograph.track.places`): every segment at one location pooled across the
+   whole recording and re-solved as one landmark (so sparse or broken evidence adds up), with a
+   surface under it unless well supported; a place another instance holds with more support at
+   the same time is that instance's (a look-alike).
+8. *Place chain*: a hidden Markov chain over the PV frames (standing at a place, carried,
+   standing where it was never seen) with robust detection likelihoods (false matches persist at
+   look-alikes' and clutter's places) and pick-up / carry / put-down rates; its most probable
+   state sequence says where the instance stands at every frame, and the posterior of each run
+   its confidence.
+9. *Intervals*: each run at a place is a :class:`~egograph.core.types.PositionInterval` at the
+   place's centre, covariance the GTSAM marginal plus ``covariance_floor_m`` squared, cut where
+   depth shows the place empty (negative evidence, :mod:`egograph.track.negative`); a run unseen
+   after a carry is an interval where the hand last held the object; nothing while carried. An
+   instance's first interval reaches back to the first frame when the chain starts at its place
+   (``backfilled``).
 
-   * an interval lasts from its first supporting detection until the first evidence that
-     the object left: a detection elsewhere, or negative evidence
-     (:mod:`egograph.track.negative`): the place in view, depth showing it empty;
-   * after a carried (dynamic) stretch, the new interval starts right after the last
-     carried detection (the object was put down then), at most ``backfill_max_s`` early;
-   * offline only, an instance's first interval is back-filled to the recording's first
-     frame (marked ``backfilled`` in the output).
-
-Modules: :mod:`egograph.track.chain` (steps 2-6: keys, chunks, the chain's graph and its offline
-solve), :mod:`egograph.track.segments` (steps 7-8: stands, carries, merging, confusions,
-intervals), :mod:`egograph.track.online` (the iSAM2 solve, frame by frame; :mod:`egograph.track.causal`
-replays a recording through it); this one runs them per instance
-over a recording (:func:`graph_tracker`).
+``graph-causal`` runs the same place chain online (:mod:`egograph.track.online`, replayed by
+:mod:`egograph.track.causal`). Modules: :mod:`egograph.track.chain` (steps 2-5),
+:mod:`egograph.track.segments` (6), :mod:`egograph.track.places` (7-8); this one runs them per
+instance over a recording (:func:`graph_tracker`).
 """
 
 from __future__ import annotations
@@ -44,7 +42,7 @@ from typing import Sequence
 
 import numpy as np
 
-from egograph.core.types import TrackResult
+from egograph.core.types import PositionInterval, TrackResult
 from egograph.core.units import TICKS_PER_SECOND
 from egograph.geometry.observations import Observations
 from egograph.track.causal import causal_tracker
@@ -53,25 +51,32 @@ from egograph.track.config import GraphConfig
 from egograph.track.detection_factor import detection_covariances
 from egograph.track.intervals import per_frame_predictions
 from egograph.track.noise_scale import refit, stand_residuals
+from egograph.track.places import (
+    candidate_covariances,
+    candidate_places,
+    chance_of_place,
+    carried_rows,
+    claim_places,
+    place_chain,
+    place_reality,
+)
 from egograph.track.segments import (
     InstanceSolution,
     NegativeFn,
     SupportFn,
-    classify_moving,
-    drop_unrelated_carries,
-    exclude_confusions,
     held_in_mid_air,
-    intervals_from_segments,
     make_segment,
-    merge_segments,
     segments_from_switches,
+    with_floor,
 )
 
 
 def _track_instance_offline(instance: int, obs: Observations, t_frames: np.ndarray, cfg: GraphConfig,
-                            negative: NegativeFn | None = None, support: SupportFn | None = None) -> InstanceSolution:
-    """Offline solve of one instance's observations (already filtered and time-sorted):
-    segments (``solution.segments``) and the intervals placed from them."""
+                            support: SupportFn | None = None) -> InstanceSolution:
+    """Offline chain solve of one instance's observations (already filtered and time-sorted): the
+    segments of the chain (``solution.segment_rows``) and its stands (``solution.segments``, what
+    the detection noise-scale fit reads). Places and intervals come later, across instances
+    (:func:`_place_intervals`)."""
     if len(obs) == 0:
         return InstanceSolution(instance, [])
     t_s = (obs.timestamps - t_frames[0]) / TICKS_PER_SECOND
@@ -81,18 +86,111 @@ def _track_instance_offline(instance: int, obs: Observations, t_frames: np.ndarr
     world, _, switches = solve_instance_offline(obs.world, cov, cands, chunk, cfg)
     if cands is not None:
         cov = detection_covariances(world, obs.camera, cfg.noise)
-    segs = [make_segment(rows, world, cov, cfg, camera=obs.camera, range_m=obs.range_m)
-            for rows in segments_from_switches(chunk, switches, cfg.break_below)]
+    rows_of = segments_from_switches(chunk, switches, cfg.break_below)
+    segs = [make_segment(rows, world, cov, cfg, camera=obs.camera, range_m=obs.range_m) for rows in rows_of]
     for seg in segs:
         seg.stationary = seg.stationary and not held_in_mid_air(seg, obs.range_m, cfg, support)
-    frames = obs.frame.astype(np.int64)
-    segs = drop_unrelated_carries(classify_moving(segs, obs.range_m, cfg), world, cfg)
-    segs = merge_segments(segs, world, cov, cfg, instance, frames, negative)
     sol = InstanceSolution(instance, [], switches, len(obs), int(chunk.max()) + 1)
-    sol.segments, sol.world, sol.cov, sol.frames = segs, world, cov, frames
-    sol.intervals = intervals_from_segments(instance, segs, t_frames, sol.frames, cfg, backfill_start=True,
-                                            negative=negative)
+    sol.segments = [seg for seg in segs if seg.stationary]
+    sol.world, sol.cov, sol.frames = world, cov, obs.frame.astype(np.int64)
+    sol.camera, sol.range_m, sol.segment_rows, sol.score = obs.camera, obs.range_m, rows_of, obs.score
+    sol.candidates = obs.candidates if obs.candidates.shape[1] > 1 else world[:, None, :]
     return sol
+
+
+def _fps(t_frames: np.ndarray) -> float:
+    """Frame rate of the PV timestamps (ticks), 30 when it cannot be told."""
+    if len(t_frames) < 2 or t_frames[-1] <= t_frames[0]:
+        return 30.0
+    return (len(t_frames) - 1) / ((t_frames[-1] - t_frames[0]) / TICKS_PER_SECOND)
+
+
+def _hand_position(sol: InstanceSolution, before: int, cfg: GraphConfig) -> np.ndarray | None:
+    """Where the hand last held the object before frame ``before``: the median of the last three
+    detections within ``carry_range_m`` of the camera (world, metres), or None."""
+    near = np.flatnonzero((sol.range_m <= cfg.carry_range_m) & (sol.frames < before))
+    return np.median(sol.world[near[-3:]], axis=0) if len(near) else None
+
+
+def _place_intervals(sol: InstanceSolution, runs, t_frames: np.ndarray, cfg: GraphConfig,
+                     negative: NegativeFn | None, reality: list[float]) -> list[PositionInterval]:
+    """The place chain's runs as position intervals: a run at a place is an interval there (cut
+    where depth shows the place empty after its last detection in the run), its confidence the
+    run's posterior times the place's reality (:func:`egograph.track.places.place_reality`); a run
+    UNSEEN after a carry is an interval where the hand last held the object; carries report
+    nothing."""
+    out: list[PositionInterval] = []
+    for g, run in enumerate(runs):
+        nxt = runs[g + 1] if g + 1 < len(runs) else None
+        ended_by = "end" if nxt is None else ("detection" if nxt.place >= 0 else "carried")
+        start, end = run.start, run.end
+        if run.place >= 0:
+            place = sol.places[run.place]
+            mine = place.frames[(place.frames >= start) & (place.frames <= end)]
+            first = int(mine.min()) if len(mine) else None
+            last = int(mine.max()) if len(mine) else start - 1
+            if negative is not None and last < end:
+                gone = negative(sol.instance, place.xyz, last + 1, end + 1)
+                if gone is not None and gone > start:
+                    end, ended_by = gone - 1, "negative"
+                elif gone is not None:
+                    continue  # seen empty from the start of the run on: nothing to report
+            xyz, cov = place.xyz, with_floor(place.covariance, cfg)
+            n_obs = len(mine)
+            seen = (first if first is not None else int(place.frames[np.argmin(np.abs(place.frames - start))]),
+                    last if first is not None else int(place.frames[np.argmin(np.abs(place.frames - end))]))
+            extra = {"start_frame": start, "end_frame": end, "place": run.place, "place_inliers": place.n_inliers,
+                     "place_reality": round(reality[run.place], 4)}
+            backfilled = start == 0 and (first is None or first > 0)
+            confidence = run.confidence * reality[run.place]
+        elif run.place == -2:
+            hand = _hand_position(sol, start, cfg)
+            if hand is None:
+                continue
+            xyz, cov = hand, (cfg.put_down_sigma_m**2 + cfg.covariance_floor_m**2) * np.eye(3)
+            n_obs, seen, backfilled = 0, (start, start), False
+            extra = {"start_frame": start, "end_frame": end, "unseen": True}
+            confidence = run.confidence * 0.5  # where the hand last held it: near, not at, the place
+        else:
+            continue
+        out.append(PositionInterval(
+            instance=int(sol.instance), t_start=int(t_frames[start]), t_end=int(t_frames[end]),
+            xyz=tuple(float(v) for v in xyz), covariance=np.asarray(cov).tolist(), n_observations=int(n_obs),
+            confidence=float(confidence), first_seen=int(t_frames[seen[0]]), last_seen=int(t_frames[seen[1]]),
+            backfilled=bool(backfilled), ended_by=ended_by, extra=extra,
+        ))
+    return out
+
+
+def _places_and_chains(solutions: list[InstanceSolution], t_frames: np.ndarray, cfg: GraphConfig,
+                       negative: NegativeFn | None, support: SupportFn | None) -> int:
+    """Every instance's places, claimed across instances, and its place chain as intervals
+    (:mod:`egograph.track.places`); fills ``sol.places``, ``sol.segments`` (the places as stands)
+    and ``sol.intervals``. Returns the number of places another instance claimed."""
+    found = {}
+    for sol in solutions:
+        if sol.world is None:
+            continue
+        found[sol.instance] = candidate_places(sol.segment_rows, sol.world, sol.cov, sol.camera, sol.range_m,
+                                               sol.frames, cfg, support)
+    kept = claim_places(found, cfg.exclusion_radius_m)
+    reality = place_reality(kept, {s.instance: np.asarray(s.score, float) for s in solutions if s.world is not None})
+    for sol in solutions:  # and not a coincidence of scattered false matches
+        if sol.world is not None:
+            reality[sol.instance] = [r * (1.0 - chance_of_place(p, sol.cov, len(sol.world), cfg))
+                                     for r, p in zip(reality[sol.instance], kept[sol.instance])]
+    fps = _fps(t_frames)
+    for sol in solutions:
+        if sol.world is None:
+            continue
+        sol.places = kept[sol.instance]
+        others = [p for j, ps in found.items() if j != sol.instance for p in ps]
+        runs = place_chain(sol.places, others, sol.candidates, candidate_covariances(sol.candidates, sol.camera, cfg),
+                           sol.score, sol.frames, carried_rows(sol.segment_rows, sol.world, sol.camera, sol.range_m, cfg),
+                           len(t_frames), cfg, fps)
+        sol.segments, sol.runs = [p.as_segment() for p in sol.places], runs
+        sol.intervals = _place_intervals(sol, runs, t_frames, cfg, negative, reality[sol.instance])
+    return sum(len(found[i]) - len(kept[i]) for i in found)
 
 
 def _select_instance_rows(obs: Observations, instance: int, threshold: float) -> Observations:
@@ -123,7 +221,7 @@ def _solve_offline(subs, t_frames: np.ndarray, cfg: GraphConfig, negative, suppo
         c = dataclasses.replace(cfg, noise=dataclasses.replace(noise, scale=scales[-1]))
         solutions = []
         for inst, sub in subs:
-            solutions.append(_track_instance_offline(inst, sub, t_frames, c, negative, support))
+            solutions.append(_track_instance_offline(inst, sub, t_frames, c, support))
             if bar is not None:
                 bar.update()
         if not noise.auto_scale or len(scales) > noise.auto_rounds:
@@ -160,9 +258,7 @@ def graph_tracker(obs: Observations, timestamps: Sequence[int], cfg: GraphConfig
     subs = [(inst, _select_instance_rows(obs, inst, cfg.score_threshold)) for inst in ids]
     solutions, scales = _solve_offline(subs, t_frames, cfg, negative, support, progress)
     cfg = dataclasses.replace(cfg, noise=dataclasses.replace(cfg.noise, scale=scales[-1]))
-    n_excluded = 0
-    if not causal and cfg.exclusion_radius_m > 0:
-        n_excluded = exclude_confusions(solutions, t_frames, cfg, negative)
+    n_excluded = _places_and_chains(solutions, t_frames, cfg, negative, support)
     intervals = sorted((iv for s in solutions for iv in s.intervals), key=lambda iv: (iv.instance, iv.t_start))
     pieces = [p for s in solutions for p in (s.pieces if s.pieces is not None else s.intervals)]
     per_frame = per_frame_predictions(pieces, t_frames)
@@ -176,7 +272,8 @@ def graph_tracker(obs: Observations, timestamps: Sequence[int], cfg: GraphConfig
         "support_test": support is not None,
         "n_observations": int(sum(s.n_observations for s in solutions)),
         "n_chunks": int(sum(s.n_chunks for s in solutions)),
-        "n_stands_excluded": n_excluded,
+        "n_places": int(sum(len(s.places or ()) for s in solutions)),
+        "n_places_claimed": n_excluded,
         "noise_scale": scales[-1],
         "noise_scale_rounds": scales,
     }
@@ -200,7 +297,7 @@ def _causal_result(obs: Observations, t_frames: np.ndarray, cfg: GraphConfig, id
         "support_test": support is not None,
         "n_observations": int(sum(s.n_observations for s in solutions)),
         "n_chunks": int(sum(s.n_chunks for s in solutions)),
-        "n_stands_excluded": 0,
+        "n_places": int(sum(len(s.places or []) for s in solutions)),
         "noise_scale": scales[-1],
         "noise_scale_rounds": scales,
     }

@@ -71,13 +71,15 @@ class NegativeEvidence:
     def supported(self, xyz, max_gap_m: float, reach_m: float = 0.1) -> bool:
         """A resting object stands on something: the scene mesh lies at most ``max_gap_m`` below
         ``xyz`` or below a point ``reach_m`` beside it (a centre estimated a little past a table's
-        edge); world y up, as HoloLens world frames are gravity-aligned. True without a mesh."""
+        edge), looking down from ``reach_m`` above it (a visible-surface point estimated a little
+        below the table top); world y up, as HoloLens world frames are gravity-aligned. True
+        without a mesh."""
         if self.scene is None:
             return True
-        offsets = reach_m * np.array([[0, 0, 0], [1, 0, 0], [-1, 0, 0], [0, 0, 1], [0, 0, -1]], dtype=np.float64)
+        offsets = reach_m * np.array([[0, 1, 0], [1, 1, 0], [-1, 1, 0], [0, 1, 1], [0, 1, -1]], dtype=np.float64)
         down = np.array([0.0, -1.0, 0.0])
         below = [_cast(self.scene, np.asarray(xyz, dtype=np.float64) + o, down[None])[0] for o in offsets]
-        return bool(min(below) <= max_gap_m)
+        return bool(min(below) - reach_m <= max_gap_m)
 
     def _depth(self, i: int) -> np.ndarray | None:
         if i in self._cache:

@@ -1,37 +1,36 @@
 """The online graph tracker: one frame's observations in, that frame's best answer out.
 
-Per instance, an iSAM2 chain of chunk landmarks (:mod:`egograph.track.chain`) grows one
-observed frame at a time; after each update the *trailing segment* (the rows since the last
-motion break) is tested like an offline stand (:mod:`egograph.track.segments`). The answer
-per instance and frame is the current best hypothesis:
+The causal form of the offline place chain (:mod:`egograph.track.places`), per instance:
 
-* a *stand* once the trailing segment passes the stand test (score: its confidence);
-* before that, the *last seen place*: the robust centre of the trailing segment once it has
-  ``graph.provisional_min_observations`` inliers (an instance's first answer:
-  ``graph.first_min_observations``, 1 by default, as the memory baseline answers) and one of
-  them has a matcher score of at least ``graph.provisional_min_score`` (score: the same
-  confidence formula, low with few inliers); less than that at a new place keeps the previous
-  answer (one stray false match neither moves nor silences the object);
-* not a new place within ``graph.exclusion_radius_m`` of another instance's current answer
-  with more inliers (``graph.causal_exclusion``: a look-alike confusion, the causal form of
-  the offline rule);
-* *nothing* while the object is carried (the segment moves with the head, or a still stand
-  seen from close by has no support under it), and from the frame where depth shows the
-  held place empty (negative evidence, ``graph.negative``) until it is seen again.
-* once a carry has been out of sight for ``graph.put_down_after_s``, the place where the hand
-  last held it (put down near there; low confidence), until it is seen again or depth shows
-  that place empty.
+* *Places* are found as the stream goes: a detection whose best alias candidate lies inside a
+  place's inlier gate (chi2 ``graph.inlier_chi2`` under the detection's covariance plus the
+  place's) joins it, and the place's centre is the information-weighted mean of its inliers
+  (covariance: the inverse of their summed information); any other detection founds a new place.
+* *The place chain* is the same hidden Markov chain as offline (states: standing at each place,
+  carried from each place, carried from nowhere known, standing at a place not yet seen), with the
+  same detection likelihoods and transition rates, advanced frame by frame by max-product (Viterbi)
+  recursion. A new place takes over the 'not yet seen' state's score (the object stood there
+  unseen) and the routes of a carry or an unseen move into it; the detection that founds it is
+  scored by the prior predictive density (``false_density``): one detection alone is not evidence
+  that the object stands where it is (its place was fitted to it), but the next one is.
+* *The answer* for a frame is the last state of the most probable state sequence so far: a place
+  (its current centre), nothing while carried, and, at a place not yet seen after a carry, where
+  the hand last held the object. With a lag S (``lag_s`` seconds) the answer for frame t is read
+  off the most probable sequence up to t + S (backtracking), so later evidence revises it; a place
+  found within the lag answers the frames before it that the sequence spends unseen just before it.
 
-Strictly causal: the answer for frame t uses the observations (and depth frames) of frames
-<= t only. With a lag S (``lag_s`` seconds) the answer for frame t is emitted once a frame at
-t + S has been processed: a hypothesis formed by then replaces the answers of the buffered
-frames from the start of its evidence (the first row of its segment, the first carried
-detection, the first empty depth frame; an instance's first hypothesis from frame 0), and a
-stand's final position by then is used for all its buffered frames.
+Carry evidence: a detection within ``carry_range_m`` of the camera is *in hand* when, together
+with the near detections of the last two seconds, it moves with the head
+(:func:`egograph.track.segments.moves_with_camera`). Negative evidence (``graph.negative``): when
+depth shows the answered place empty, standing there becomes ``places.empty_likelihood`` times less
+likely. The detection noise scale is fitted as the stream goes (``graph.noise.online_auto``): the
+offline fit (:mod:`egograph.track.noise_scale`) on the newest inliers of places with two or more,
+every ``online_refit_every`` detections.
 
-Memory and time per frame are bounded: a segment keeps its last ``graph.online_max_rows``
-rows, and each instance's iSAM2 is restarted every ``graph.online_window_chunks`` chunks with
-the newest landmark's marginal as a prior. World frame, metres; PV frame indices and 100 ns ticks.
+Memory and time per frame are bounded: each place keeps its newest ``online_max_rows`` inliers (for
+the scale fit) and an instance at most ``online_max_places`` places (the weakest one that no recent
+path uses is forgotten); back-pointers are kept for the lag only. World frame, metres; PV frame
+indices and 100 ns ticks.
 
 A live loop::
 
@@ -46,153 +45,110 @@ import dataclasses
 from collections import deque
 from dataclasses import dataclass, field
 
-import gtsam
 import numpy as np
 
 from egograph.core.types import PositionInterval, Prediction
 from egograph.core.units import TICKS_PER_SECOND
 from egograph.geometry.observations import Observations
-from egograph.track.chain import L, S, add_break_factors
 from egograph.track.config import GraphConfig
-from egograph.track.detection_factor import add_detection_factors, detection_covariances
+from egograph.track.detection_factor import detection_covariances
 from egograph.track.noise_scale import centred, refit
-from egograph.track.segments import (
-    NegativeFn,
-    Segment,
-    SupportFn,
-    held_in_mid_air,
-    is_stand,
-    moves_with_camera,
-    stand_confidence,
-    with_floor,
+from egograph.track.places import (
+    ANY_CARRY,
+    UNSEEN_STATE,
+    candidate_covariances,
+    carry_state,
+    carry_states,
+    log_true_share,
+    n_states,
+    row_log_likelihoods,
+    stand_state,
+    state_kind,
+    transitions,
 )
-from egograph.track.switchable import dcs_phi, dcs_switch_value
+from egograph.track.segments import NegativeFn, SupportFn, moves_with_camera, with_floor
 
-STAND, LAST_SEEN = "stand", "last_seen"
+HAND_WINDOW_S = 2.0
+"""Near detections of the last this many seconds decide whether a new one moves with the head."""
 
 
-@dataclass
-class Hypothesis:
-    """Where one instance is believed to be. Mutable: a stand's estimate is refined in place
-    while it is held, so lagged answers read its position as of their emission."""
+@dataclass(eq=False)
+class OnlinePlace:
+    """A place found online: the information-weighted mean of its inliers (world, metres)."""
 
-    instance: int
-    kind: str                   # STAND or LAST_SEEN
-    xyz: np.ndarray             # world, metres
-    covariance: np.ndarray      # 3x3 m^2, without the floor
-    confidence: float           # 0-1
-    n_inliers: int
-    first_frame: int            # first inlier detection, PV frame index
-    last_frame: int             # last inlier detection, PV frame index
-    first_seen: int             # their timestamps, ticks
+    info: np.ndarray            # summed information of its inliers, 1/m^2
+    info_x: np.ndarray          # summed information times position
+    n: int
+    first_frame: int
+    last_frame: int
+    first_seen: int             # ticks
     last_seen: int
-    segment_id: int             # the trailing segment that supports it now
-    estimate_segment: int = -1  # the segment its estimate comes from (the best-supported one)
-    ended_by: str = ""
+    rows: deque                 # newest inliers: (world, information) for the noise-scale fit
+    xyz: np.ndarray = field(default_factory=lambda: np.zeros(3))
+    covariance: np.ndarray = field(default_factory=lambda: np.eye(3))
+    supported: tuple | None = None      # (inliers when tested, whether the scene holds it up)
+    near_only: bool = False             # every inlier seen from within carry_range_m
 
-    def prediction(self) -> Prediction:
-        """The answer as a prediction, made again only when the estimate changed."""
-        key = (self.xyz.tobytes(), self.confidence)
-        if getattr(self, "_key", None) != key:
-            self._key = key
-            self._pred = Prediction(self.instance, tuple(float(v) for v in self.xyz), float(self.confidence))
-        return self._pred
+    def update(self) -> None:
+        self.covariance = np.linalg.inv(self.info)
+        self.xyz = self.covariance @ self.info_x
 
+    def add(self, world: np.ndarray, info: np.ndarray, frame: int, ticks: int, near: bool) -> None:
+        self.near_only = self.near_only and near
+        self.info = self.info + info
+        self.info_x = self.info_x + info @ world
+        self.n += 1
+        self.last_frame, self.last_seen = frame, ticks
+        self.rows.append((world, info))
+        self.update()
 
-@dataclass
-class _Run:
-    """From ``start`` (PV frame index) on, the instance's answer is ``hyp`` (None: nothing)."""
-
-    start: int
-    hyp: Hypothesis | None
+    def rescale(self, f2: float) -> None:
+        """Every inlier's covariance times ``f2`` (a new detection noise scale squared)."""
+        self.info, self.info_x = self.info / f2, self.info_x / f2
+        self.rows = deque(((w, i / f2) for w, i in self.rows), maxlen=self.rows.maxlen)
+        self.update()
 
 
 @dataclass
 class _Instance:
     """One instance's incremental state."""
 
-    isam: gtsam.ISAM2
-    t_origin_s: float                   # time of its first observation, s since t0 (chunk grid origin)
-    cell: int = -1                      # grid cell of the newest chunk
-    k: int = -1                         # newest chunk id
-    chunks_in_isam: int = 0
-    chunk_first_row: int = 0            # global row index of chunk k's first row
-    n_rows: int = 0                     # rows seen so far (global row index of the next one)
-    seg_first_row: int = 0              # global row index where the trailing segment starts
-    segment_id: int = 0
-    rows: "_Rows | None" = None          # the trailing segment's newest rows
-    held: Hypothesis | None = None
-    runs: list = field(default_factory=list)    # answer runs not yet fully emitted
-    switches: list = field(default_factory=list)
+    delta: np.ndarray                   # log max-product score per state (places.n_states layout)
+    places: list = field(default_factory=list)
+    back: deque = field(default_factory=deque)   # (frame, back-pointers into the previous frame's states)
+    near: deque = field(default_factory=deque)   # (ticks, world, camera, range) near detections
+    hands: deque = field(default_factory=lambda: deque(maxlen=64))  # (ticks, where the hand held it)
+    hand_rows: deque = field(default_factory=lambda: deque(maxlen=3))
+    n_rows: int = 0
     last_negative_check: int = -1
-    carry: deque = field(default_factory=lambda: deque(maxlen=6))  # (world, camera) of the last carried rows
-    in_carry: bool = False              # the answer is nothing because the object is carried
-    carry_ticks: int = 0                # timestamp of the newest carried detection
-    answered: bool = False              # some hypothesis has been held (the first one needs first_min_observations)
+    created: int = 0                    # the PV frame of its first detection
 
 
-class _Rows:
-    """The newest rows of an instance's trailing segment, at most ``capacity``, in numpy buffers of
-    twice that (appends shift the kept rows to the front when the end is reached)."""
-
-    def __init__(self, capacity: int):
-        self.cap, n = capacity, 2 * capacity
-        self.row = np.zeros(n, np.int64)
-        self.frame = np.zeros(n, np.int64)
-        self.ticks = np.zeros(n, np.int64)
-        self.world, self.camera = np.zeros((n, 3)), np.zeros((n, 3))
-        self.cov, self.info = np.zeros((n, 3, 3)), np.zeros((n, 3, 3))
-        self.range, self.score = np.zeros(n), np.zeros(n)
-        self.lo = self.hi = 0
-
-    _FIELDS = ("row", "frame", "ticks", "world", "camera", "cov", "info", "range", "score")
-
-    def append(self, row0: int, frame: int, ticks: int, world, cov, info, camera, rng, score) -> None:
-        m = min(len(world), self.cap)
-        world, cov, info, camera, rng, score = world[-m:], cov[-m:], info[-m:], camera[-m:], rng[-m:], score[-m:]
-        if self.hi + m > len(self.row):
-            keep = max(0, min(self.hi - self.lo, self.cap - m))
-            for name in self._FIELDS:
-                a = getattr(self, name)
-                a[:keep] = a[self.hi - keep:self.hi]
-            self.lo, self.hi = 0, keep
-        sl = slice(self.hi, self.hi + m)
-        self.row[sl] = row0 + np.arange(m)
-        self.frame[sl], self.ticks[sl] = frame, ticks
-        self.world[sl], self.cov[sl], self.info[sl], self.camera[sl], self.range[sl] = world, cov, info, camera, rng
-        self.score[sl] = score
-        self.hi += m
-        self.lo = max(self.lo, self.hi - self.cap)
-
-    def drop_before(self, row: int) -> None:
-        """Forget rows whose global index is below ``row`` (the segment starts there)."""
-        self.lo += int(np.searchsorted(self.row[self.lo:self.hi], row))
-
-    def view(self):
-        sl = slice(self.lo, self.hi)
-        return (self.frame[sl], self.ticks[sl], self.world[sl], self.cov[sl], self.info[sl], self.camera[sl],
-                self.range[sl])
+def alias_candidates(obs: Observations, sel: np.ndarray) -> np.ndarray:
+    """(M, C, 3) the AHAT alias candidates of rows ``sel``, the chosen one being ``world`` (the
+    lifted point is the authority; the candidates are its alternatives), world frame, metres."""
+    world = np.asarray(obs.world[sel], float)
+    cands = np.array(obs.candidates[sel], float)
+    if cands.ndim != 3 or cands.shape[1] == 0:
+        return world[:, None, :]
+    chosen = np.asarray(obs.chosen[sel], int)
+    at = np.where((chosen >= 0) & (chosen < cands.shape[1]), chosen, 0)
+    cands[np.arange(len(sel)), at] = world
+    return cands
 
 
-def _mahalanobis2(world: np.ndarray, centre: np.ndarray, info: np.ndarray) -> np.ndarray:
-    """Squared Mahalanobis distance of each row to ``centre`` under its information matrix."""
-    d = world - centre
-    return np.einsum("mi,mij,mj->m", d, info, d)
-
-
-def _isam() -> gtsam.ISAM2:
-    params = gtsam.ISAM2Params()
-    params.setRelinearizeThreshold(0.01)
-    return gtsam.ISAM2(params)
+def _predecessors(delta: np.ndarray, log_a_new: np.ndarray) -> tuple[float, int]:
+    best = int(np.argmax(delta + log_a_new))
+    return float(delta[best] + log_a_new[best]), best
 
 
 class OnlineTracker:
     """The graph tracker fed one PV frame at a time (module doc).
 
-    ``cfg``: the ``graph`` configuration; ``t0``: the recording's first PV timestamp (ticks: the
-    time origin of the chunk grid); ``lag_s``: answers wait this many seconds for later evidence
-    (default ``cfg.lag_s``; 0 is strictly causal); ``negative``/``support``: as for
-    :func:`egograph.track.graph.graph_tracker` (they may read only frames up to the current one).
+    ``cfg``: the ``graph`` configuration; ``t0``: the recording's first PV timestamp (ticks);
+    ``lag_s``: answers wait this many seconds for later evidence (default ``cfg.lag_s``; 0 is
+    strictly causal); ``negative``/``support``: as for :func:`egograph.track.graph.graph_tracker`
+    (they may read only frames up to the current one).
     """
 
     def __init__(self, cfg: GraphConfig, t0: int, *, lag_s: float | None = None,
@@ -203,16 +159,18 @@ class OnlineTracker:
         self.inst: dict[int, _Instance] = {}
         self.pending: deque = deque()    # (frame, timestamp) not yet emitted
         self.ready: deque = deque()      # (frame, timestamp, predictions) emitted, not yet collected
-        self.spans: list[tuple[Hypothesis, int, int, int, int]] = []  # stand reported over (f0, t0, f1, t1)
-        self._open: dict[int, list] = {}  # instance -> [hyp, f0, t0, f1, t1] of the span being emitted
-        self.last_frame = -1
+        self.spans: list[tuple] = []     # (instance, place, f0, t0, f1, t1, confidence) stands reported
+        self._open: dict[int, list] = {}
+        self.last_frame, self.last_ts = -1, None
         self.n_observations = 0
-        # detection noise scale (graph.noise): fitted as the stream goes with online_auto
+        self.fps = 30.0
         self.scale = float(cfg.noise.auto_start if cfg.noise.online_auto else cfg.noise.scale)
         self.scales = [self.scale]
         self._noise = dataclasses.replace(cfg.noise, scale=self.scale)
-        self._residuals: dict[tuple[int, int], np.ndarray] = {}  # (instance, segment) -> stand inliers' d2
+        self._cfg_scaled = dataclasses.replace(cfg, noise=self._noise)
         self._next_fit = cfg.noise.online_refit_every
+        self._trans: dict[tuple[int, float], tuple[np.ndarray, np.ndarray]] = {}
+        self._keep_back = max(2, int(np.ceil(self.lag_ticks / TICKS_PER_SECOND * 60.0)) + 2)
 
     # ------------------------------------------------------------------ the loop
 
@@ -221,28 +179,32 @@ class OnlineTracker:
         observations (rows of other frames are refused; invalid and below-threshold rows are
         ignored). Returns the causal answer for this frame, one prediction per instance; with a
         lag, the final answers of earlier frames are collected with :meth:`collect`."""
-        frame = int(frame)
+        frame, timestamp = int(frame), int(timestamp)
         if frame <= self.last_frame:
             raise ValueError(f"frame {frame} after frame {self.last_frame}: frames must increase")
-        self.last_frame = frame
-        self.pending.append((frame, int(timestamp)))
+        if obs is not None and len(obs) and np.any(obs.frame != frame):
+            raise ValueError(f"observations of frames {sorted(set(obs.frame.tolist()) - {frame})} given "
+                             f"with frame {frame}")
+        if self.last_ts is not None and timestamp > self.last_ts:
+            self.fps = 0.9 * self.fps + 0.1 * TICKS_PER_SECOND * (frame - self.last_frame) / (timestamp - self.last_ts)
+        self.last_frame, self.last_ts = frame, timestamp
+        self.pending.append((frame, timestamp))
+        rows: dict[int, np.ndarray] = {}
         if obs is not None and len(obs):
-            if np.any(obs.frame != frame):
-                raise ValueError(f"observations of frames {sorted(set(obs.frame.tolist()) - {frame})} given "
-                                 f"with frame {frame}")
             keep = obs.valid & (np.asarray(obs.score, np.float32) >= np.float32(self.cfg.score_threshold))
             for inst in np.unique(obs.instance[keep]):
-                sel = np.flatnonzero(keep & (obs.instance == inst))
-                self._observe(int(inst), frame, int(timestamp), obs, sel)
-        if self.cfg.put_down_after_s > 0:
-            for i, st in self.inst.items():
-                self._guess_put_down(i, st, frame, int(timestamp))
-        if self.negative is not None:
-            for i, st in self.inst.items():
-                self._check_negative(i, st, frame)
-        now = {i: st.runs[-1].hyp for i, st in self.inst.items() if st.runs}
-        self._emit(int(timestamp) - self.lag_ticks)
-        return [now[i].prediction() for i in sorted(now) if now[i] is not None]
+                rows[int(inst)] = np.flatnonzero(keep & (obs.instance == inst))
+                if int(inst) not in self.inst:
+                    self.inst[int(inst)] = self._new_instance(frame)
+        for i, st in self.inst.items():
+            self._advance(i, st, frame, timestamp, obs, rows.get(i))
+        if self.cfg.noise.online_auto and self.n_observations >= self._next_fit:
+            self._next_fit = self.n_observations + self.cfg.noise.online_refit_every
+            self._refit_scale()
+        now = {i: self._answer(i, st, int(np.argmax(st.delta)), None, timestamp, self._lead_probability(st))
+               for i, st in self.inst.items()}
+        self._emit(timestamp - self.lag_ticks)
+        return [now[i] for i in sorted(now) if now[i] is not None]
 
     def collect(self) -> list[tuple[int, int, list[Prediction]]]:
         """Final answers emitted since the last call: (frame, timestamp, predictions), in frame order."""
@@ -258,285 +220,395 @@ class OnlineTracker:
         return self.collect()
 
     def intervals(self) -> list[PositionInterval]:
-        """The stands reported so far (emitted frames), one interval per stand and run of
-        frames, at the stand's latest estimate; last-seen answers are per-frame only."""
-        spans = list(self.spans) + [tuple(s) for s in self._open.values() if s[0].kind == STAND]
+        """The stands reported so far (emitted frames), one interval per place and run of frames,
+        at the place's latest estimate."""
+        spans = list(self.spans) + [tuple(s) for s in self._open.values()]
         out = []
-        for hyp, f0, t0, f1, t1 in spans:
+        for inst, place, f0, t0, f1, t1, conf in spans:
             out.append(PositionInterval(
-                instance=hyp.instance, t_start=t0, t_end=t1, xyz=tuple(float(v) for v in hyp.xyz),
-                covariance=with_floor(hyp.covariance, self.cfg).tolist(), n_observations=hyp.n_inliers,
-                confidence=hyp.confidence, first_seen=hyp.first_seen,
-                last_seen=hyp.last_seen, ended_by=hyp.ended_by or "end",
-                extra={"start_frame": f0, "end_frame": f1, "segment": hyp.segment_id},
+                instance=inst, t_start=t0, t_end=t1, xyz=tuple(float(v) for v in place.xyz),
+                covariance=with_floor(place.covariance, self.cfg).tolist(), n_observations=place.n,
+                confidence=conf, first_seen=place.first_seen, last_seen=place.last_seen, ended_by="end",
+                extra={"start_frame": f0, "end_frame": f1},
             ))
-        return sorted(out, key=lambda iv: (iv.instance, iv.t_start))
+        out.sort(key=lambda iv: (iv.instance, iv.t_start))
+        for a, b in zip(out, out[1:]):
+            if a.instance == b.instance:
+                a.ended_by = "detection"
+        return out
 
     # ------------------------------------------------------------------ per instance
 
-    def _observe(self, inst: int, frame: int, ts: int, obs: Observations, sel: np.ndarray) -> None:
+    def _new_instance(self, frame: int) -> _Instance:
+        _, prior = transitions(0, self.cfg, self.fps)
+        return _Instance(delta=prior.copy(), back=deque(maxlen=self._keep_back), near=deque(),
+                         hand_rows=deque(maxlen=3), created=frame)
+
+    def _transitions(self, k: int) -> np.ndarray:
+        key = (k, round(self.fps, 1))
+        if key not in self._trans:
+            if len(self._trans) > 256:
+                self._trans.clear()
+            self._trans[key] = transitions(k, self.cfg, self.fps)
+        return self._trans[key][0]
+
+    def _advance(self, inst: int, st: _Instance, frame: int, ts: int, obs: Observations | None,
+                 sel: np.ndarray | None) -> None:
+        """One frame of the place chain: transition, new places, detections, negative evidence."""
+        k = len(st.places)
+        m = st.delta[:, None] + self._transitions(k)
+        back = np.argmax(m, axis=0)
+        delta = m[back, np.arange(len(back))]
+        held_now = False
+        if sel is not None and len(sel):
+            delta, back, held_now = self._observe(inst, st, frame, ts, obs, sel, delta, back)
+        if not held_now:
+            delta[carry_states(len(st.places))] += np.log1p(-self.cfg.places.carry_detect_rate)
+        claims = self._claims(inst)
+        for j, p in enumerate(st.places):
+            if not self._held_up(p) or any(n > p.n and np.linalg.norm(xyz - p.xyz) <= self.cfg.exclusion_radius_m
+                                           for xyz, n in claims):
+                delta[stand_state(j)] = -np.inf  # in mid-air, or another instance's: not a place to stand
+        if self.negative is not None:
+            self._check_negative(inst, st, frame, delta)
+        st.delta = delta - np.max(delta)
+        st.back.append((frame, back.astype(np.int32)))
+        while len(st.places) > self.cfg.online_max_places:
+            lead = state_kind(int(np.argmax(st.delta)))
+            weakest = min((j for j in range(len(st.places)) if j != lead),
+                          key=lambda j: (st.places[j].n, st.places[j].last_frame))
+            self._forget(st, weakest)
+
+    def _observe(self, inst: int, st: _Instance, frame: int, ts: int, obs: Observations, sel: np.ndarray,
+                 delta: np.ndarray, back: np.ndarray) -> tuple[np.ndarray, np.ndarray, bool]:
         cfg = self.cfg
         self.n_observations += len(sel)
-        t_s = (ts - self.t0) / TICKS_PER_SECOND
-        st = self.inst.get(inst)
-        if st is None:
-            st = self.inst[inst] = _Instance(_isam(), t_s, rows=_Rows(cfg.online_max_rows))
-        world = np.asarray(obs.world[sel], dtype=float)
-        camera = np.asarray(obs.camera[sel], dtype=float)
-        cov = detection_covariances(world, camera, self._noise)
-        info = np.linalg.inv(cov)
-        cell = int(np.floor((t_s - st.t_origin_s) / cfg.chunk_s))
-        graph, values = gtsam.NonlinearFactorGraph(), gtsam.Values()
-        new_chunk = cell > st.cell
-        if new_chunk:
-            st.cell, st.k = cell, st.k + 1
-            k = st.k
-            if k and st.chunks_in_isam >= cfg.online_window_chunks:
-                self._restart(st, k - 1)
-            values.insert(L(k), gtsam.Point3(*np.median(world, axis=0)))
-            if k:
-                add_break_factors(graph, values, k, cfg)
-            st.chunks_in_isam += 1
-            st.chunk_first_row = st.n_rows
-        k = st.k
-        add_detection_factors(graph, np.full(len(world), L(k)), world, cov, self._noise)
-        st.isam.update(graph, values)
-        here = np.asarray(st.isam.calculateEstimatePoint3(L(k)), dtype=float)
-        if k and st.chunks_in_isam > 1:
-            if cfg.switches == "switchable":
-                sw = min(1.0, max(0.0, float(st.isam.calculateEstimateVector(S(k))[0])))
-            else:
-                sw = dcs_switch_value(np.asarray(st.isam.calculateEstimatePoint3(L(k - 1))), here,
-                                      cfg.still_sigma_m, dcs_phi(cfg.switch_sigma))
-            if sw < cfg.break_below and st.seg_first_row < st.chunk_first_row:
-                st.seg_first_row = st.chunk_first_row
-                st.segment_id += 1
-            if new_chunk:
-                st.switches.append(sw)
-        rng = np.asarray(obs.range_m[sel], dtype=float)
-        score = np.asarray(obs.score[sel], dtype=float)
-        st.rows.append(st.n_rows, frame, ts, world, cov, info, camera, rng, score)
         st.n_rows += len(sel)
-        st.rows.drop_before(st.seg_first_row)
-        self._decide(inst, st, here, frame)
-        if cfg.noise.online_auto and self.n_observations >= self._next_fit:
-            self._next_fit = self.n_observations + cfg.noise.online_refit_every
-            self._refit_scale()
+        world = np.asarray(obs.world[sel], float)
+        camera = np.asarray(obs.camera[sel], float)
+        rng = np.asarray(obs.range_m[sel], float)
+        cands = alias_candidates(obs, sel)
+        cand_cov = candidate_covariances(cands, camera, self._cfg_scaled)
+        log_true = log_true_share(obs.score[sel], cfg)
+        # each detection joins the place whose gate (or merge radius) its best alias candidate falls in
+        joins = np.full(len(sel), -1)
+        for r in range(len(sel)):
+            j, c = self._nearest_place(st, cands[r], cand_cov[r])
+            if j >= 0:
+                joins[r], world[r] = j, cands[r, c]
+        # near detections that no place seen from afar explains, moving with the head: in hand
+        young = ts - HAND_WINDOW_S * TICKS_PER_SECOND
+        free = np.array([j < 0 or (st.places[j].near_only and st.places[j].first_seen >= young) for j in joins], bool)
+        in_hand = self._in_hand(st, ts, world, camera, rng, free)
+        joins[in_hand] = -1
+        founded = np.full(len(sel), -1)  # the place each of the others founds
+        for r in np.flatnonzero((joins < 0) & ~in_hand):
+            j, c = self._nearest_place(st, cands[r], cand_cov[r])  # a place founded this frame
+            if j >= 0:
+                joins[r], world[r] = j, cands[r, c]
+                continue
+            founded[r] = len(st.places)
+            delta, back = self._found(st, world[r], cand_cov[r, 0], frame, ts, delta, back)
+        k = len(st.places)
+        new = set(int(j) for j in founded if j >= 0)
+        spots = [(p.xyz, p.covariance, 0 if j in new else p.n) for j, p in enumerate(st.places)] + self._others(inst)
+        ll = row_log_likelihoods(spots, k, cands, cand_cov, log_true, in_hand, cfg)
+        for r in range(len(sel)):
+            if founded[r] >= 0:  # the founding detection: prior predictive under its own place
+                s = stand_state(int(founded[r]))
+                ll[r, s] = np.logaddexp(log_true[r] + np.log(cfg.places.false_density), ll[r, UNSEEN_STATE])
+        delta = delta + ll.sum(axis=0)
+        info = np.linalg.inv(detection_covariances(world, camera, self._noise))
+        for r in np.flatnonzero(joins >= 0):
+            st.places[int(joins[r])].add(world[r], info[r], frame, ts, bool(rng[r] <= cfg.carry_range_m))
+        for r in np.flatnonzero(founded >= 0):
+            st.places[int(founded[r])].near_only = bool(rng[r] <= cfg.carry_range_m)
+        for j in sorted({int(v) for v in joins if v >= 0}, reverse=True):
+            delta, back = self._merge_into(st, j, delta, back)
+        if in_hand.any():
+            for w in world[in_hand]:
+                st.hand_rows.append(w)
+            st.hands.append((ts, np.median(np.array(st.hand_rows), axis=0)))
+            # the near detections that founded places just before were the object in hand already
+            since = ts - HAND_WINDOW_S * TICKS_PER_SECOND
+            for j in reversed(range(len(st.places))):
+                p = st.places[j]
+                if p.near_only and p.first_seen >= since and p.n <= len(st.near):
+                    delta, back = self._forget(st, j, delta, back)
+        return delta, back, bool(in_hand.any())
+
+    def _found(self, st: _Instance, world: np.ndarray, cov: np.ndarray, frame: int, ts: int,
+               delta: np.ndarray, back: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """A new place at ``world``: its stand state takes the routes into it from the previous
+        frame (standing there unseen, a carry ending, an unseen move); its carry state none."""
+        pc, dt = self.cfg.places, 1.0 / max(self.fps, 1e-3)
+        k = len(st.places)
+        prev = st.delta  # scores of the previous frame (before this frame's transition)
+        lift, drop = pc.pick_up_rate * dt, dt / pc.carry_s
+        into = np.full(len(prev), -np.inf)
+        into[UNSEEN_STATE] = np.log1p(-lift)
+        into[ANY_CARRY] = np.log(drop * (1.0 - pc.unseen_put_down) / (k + 1))
+        for j in range((len(prev) - 2) // 2):  # places of the previous frame
+            into[carry_state(j)] = np.log(max(drop * (1.0 - pc.put_back - pc.unseen_put_down), 1e-300) / (k + 1))
+            into[stand_state(j)] = np.log(max(pc.unseen_move_rate * dt, 1e-300) / (k + 1))
+        score, src = _predecessors(prev, into)
+        info = np.linalg.inv(cov)
+        p = OnlinePlace(info=info, info_x=info @ world, n=1, first_frame=frame, last_frame=frame, first_seen=ts,
+                        last_seen=ts, rows=deque([(world, info)], maxlen=self.cfg.online_max_rows))
+        p.update()
+        st.places.append(p)
+        delta = np.concatenate([delta, [score, -np.inf]])
+        back = np.concatenate([back, [src, src]])
+        return delta, back
+
+    def _nearest_place(self, st: _Instance, cands: np.ndarray, cand_cov: np.ndarray) -> tuple[int, int]:
+        """(place, alias candidate) of the place whose inlier gate one of a detection's candidates
+        ``cands`` (C, 3) falls in, or that lies within ``merge_radius_m`` of it, the closest in the
+        Mahalanobis sense; (-1, -1) when none."""
+        best, best_d2, best_c = -1, np.inf, -1
+        ok = np.flatnonzero(np.isfinite(cands[:, 0]))
+        for j, p in enumerate(st.places):
+            d = cands[ok] - p.xyz
+            d2 = np.einsum("ci,cij,cj->c", d, np.linalg.inv(cand_cov[ok] + p.covariance), d)
+            c = int(np.argmin(d2))
+            if d2[c] < best_d2 and (d2[c] <= self.cfg.inlier_chi2 or np.linalg.norm(d[c]) <= self.cfg.merge_radius_m):
+                best, best_d2, best_c = j, float(d2[c]), int(ok[c])
+        return best, best_c
+
+    def _in_hand(self, st: _Instance, ts: int, world: np.ndarray, camera: np.ndarray, rng: np.ndarray,
+                 free: np.ndarray) -> np.ndarray:
+        """Per detection: one that no place explains (``free``), seen from within ``carry_range_m``
+        and, with such near detections of the last :data:`HAND_WINDOW_S` seconds, moving with the
+        head (an alias-wrapped view of a standing object also keeps its offset to the head, but its
+        other candidate fits the place)."""
+        cfg = self.cfg
+        near = free & (rng <= cfg.carry_range_m)
+        while st.near and ts - st.near[0][0] > HAND_WINDOW_S * TICKS_PER_SECOND:
+            st.near.popleft()
+        for r in np.flatnonzero(near):
+            st.near.append((ts, world[r], camera[r], rng[r]))
+        if len(st.near) >= max(cfg.min_carry_observations, 2) and near.any():
+            w = np.array([x[1] for x in st.near])
+            c = np.array([x[2] for x in st.near])
+            r = np.array([x[3] for x in st.near])
+            if moves_with_camera(w, c, r, cfg):
+                return near
+        return np.zeros(len(world), bool)
+
+    def _claims(self, inst: int) -> list[tuple[np.ndarray, int]]:
+        """(centre, inliers) of the place every other instance stands at now (its leading state):
+        two objects cannot stand in one place at once (graph.exclusion_radius_m)."""
+        out = []
+        for j, st in self.inst.items():
+            kind = state_kind(int(np.argmax(st.delta))) if j != inst else -1
+            if kind >= 0:
+                out.append((st.places[kind].xyz, st.places[kind].n))
+        return out
+
+    def _others(self, inst: int) -> list:
+        """The other instances' places with two or more inliers: where look-alike matches gather."""
+        return [(p.xyz, p.covariance, p.n) for j, st in self.inst.items() if j != inst
+                for p in st.places if p.n >= 2]
+
+    def _merge_into(self, st: _Instance, j: int, delta: np.ndarray, back: np.ndarray
+                    ) -> tuple[np.ndarray, np.ndarray]:
+        """Place ``j`` moved within ``merge_radius_m`` of another: one place, the stronger keeps the
+        inliers of both and the better score of each state."""
+        near = [i for i, q in enumerate(st.places)
+                if i != j and np.linalg.norm(q.xyz - st.places[j].xyz) <= self.cfg.merge_radius_m]
+        if not near:
+            return delta, back
+        i = max(near, key=lambda q: st.places[q].n)
+        keep, lose = (i, j) if st.places[i].n >= st.places[j].n else (j, i)
+        a, b = st.places[keep], st.places[lose]
+        a.info, a.info_x, a.n = a.info + b.info, a.info_x + b.info_x, a.n + b.n
+        a.first_frame, a.first_seen = min(a.first_frame, b.first_frame), min(a.first_seen, b.first_seen)
+        a.near_only = a.near_only and b.near_only
+        a.rows.extend(b.rows)
+        a.update()
+        for s_keep, s_lose in ((stand_state(keep), stand_state(lose)), (carry_state(keep), carry_state(lose))):
+            if delta[s_lose] > delta[s_keep]:
+                delta[s_keep], back[s_keep] = delta[s_lose], back[s_lose]
+        into = {stand_state(lose): stand_state(keep), carry_state(lose): carry_state(keep)}
+        return self._forget(st, lose, delta, back, into)
+
+    @staticmethod
+    def _forget(st: _Instance, j: int, delta: np.ndarray | None = None, back: np.ndarray | None = None,
+                into: dict | None = None) -> tuple[np.ndarray | None, np.ndarray | None]:
+        """Drop place ``j`` and its two states. States are only ever appended, so an index names one
+        state in every stored frame: each frame's entries for the two go, the other entries shift
+        down, and back-pointers into them go to ``into`` (default: the unseen state for its stand,
+        the carry from nowhere known for its carry). ``delta``/``back``: this frame's, when called
+        within a frame."""
+        gone = into or {stand_state(j): UNSEEN_STATE, carry_state(j): ANY_CARRY}
+        top = n_states(len(st.places))
+        kept_all = [s for s in range(top) if s not in gone]
+        remap = np.empty(top, np.int64)
+        remap[kept_all] = np.arange(len(kept_all))
+        for s, to in gone.items():
+            remap[s] = remap[to]
+
+        def entries(n: int) -> list[int]:
+            return [s for s in range(n) if s not in gone]
+
+        st.places.pop(j)
+        st.delta = st.delta[entries(len(st.delta))]
+        kept = deque(maxlen=st.back.maxlen)
+        for f, b in st.back:
+            kept.append((f, remap[b[entries(len(b))]].astype(np.int32)))
+        st.back = kept
+        if delta is not None:
+            delta = delta[entries(len(delta))]
+        if back is not None:
+            back = remap[back[entries(len(back))]]
+        return delta, back
+
+    def _check_negative(self, inst: int, st: _Instance, frame: int, delta: np.ndarray) -> None:
+        """Depth showing the leading place empty (a run of ``min_frames`` empty frames, tested
+        every ``stride`` frames) makes standing there ``empty_likelihood`` times less likely."""
+        ncfg = self.cfg.negative
+        lead = state_kind(int(np.argmax(delta)))
+        if lead < 0 or frame - st.last_negative_check < ncfg.stride:
+            return
+        p = st.places[lead]
+        if frame - p.last_frame <= ncfg.stride:
+            return
+        st.last_negative_check = frame
+        lo = max(p.last_frame + 1, frame - ncfg.stride * (ncfg.min_frames + 1))
+        if self.negative(inst, p.xyz, lo, frame + 1) is not None:
+            delta[stand_state(lead)] += np.log(self.cfg.places.empty_likelihood)
 
     def _refit_scale(self) -> None:
-        """The offline scale fit (:mod:`egograph.track.noise_scale`) on the residuals of the stands
-        confirmed so far; a change of at least 5 % rescales every kept row's covariance (so the stand
-        tests use it at once) and the factors of newer detections."""
-        d2 = np.concatenate(list(self._residuals.values())) if self._residuals else np.zeros(0)
-        new = refit(d2, self.scale, self.cfg.noise, self.cfg.inlier_chi2)
+        """The offline scale fit on the newest inliers of every place with two or more; a change of
+        at least 5 % rescales every place (its inliers' information)."""
+        d2 = []
+        for st in self.inst.values():
+            for p in st.places:
+                if p.n >= 2 and len(p.rows) >= 2:
+                    w = np.array([x[0] for x in p.rows])
+                    info = np.array([x[1] for x in p.rows])
+                    d = w - p.xyz
+                    d2.append(centred(np.einsum("mi,mij,mj->m", d, info, d)))
+        new = refit(np.concatenate(d2) if d2 else np.zeros(0), self.scale, self.cfg.noise, self.cfg.inlier_chi2)
         if new is None:
             return
         f2 = (new / self.scale) ** 2
         for st in self.inst.values():
-            sl = slice(st.rows.lo, st.rows.hi)
-            st.rows.cov[sl] *= f2
-            st.rows.info[sl] /= f2
+            for p in st.places:
+                p.rescale(f2)
         self.scale = new
         self.scales.append(self.scale)
         self._noise = dataclasses.replace(self.cfg.noise, scale=self.scale)
-        self._residuals.clear()  # residuals were whitened at the old scale
+        self._cfg_scaled = dataclasses.replace(self.cfg, noise=self._noise)
 
-    def _restart(self, st: _Instance, k_last: int) -> None:
-        """Bound the history: a new iSAM2 holding only landmark ``k_last`` under its marginal."""
-        est = st.isam.calculateEstimatePoint3(L(k_last))
-        try:
-            marg = st.isam.marginalCovariance(L(k_last))
-        except RuntimeError:
-            marg = self.cfg.still_sigma_m**2 * np.eye(3)
-        st.isam = _isam()
-        graph, values = gtsam.NonlinearFactorGraph(), gtsam.Values()
-        graph.add(gtsam.PriorFactorPoint3(L(k_last), gtsam.Point3(*est), gtsam.noiseModel.Gaussian.Covariance(marg)))
-        values.insert(L(k_last), gtsam.Point3(*est))
-        st.isam.update(graph, values)
-        st.chunks_in_isam = 1
+    # ------------------------------------------------------------------ answers and emission
 
-    def _decide(self, inst: int, st: _Instance, here: np.ndarray, frame: int) -> None:
-        """The best hypothesis after this frame's observations (module doc)."""
-        cfg = self.cfg
-        frames, ticks, world, cov, info, camera, rng = st.rows.view()
-        seg, moving, near = _stand_around(here, world, cov, info, camera, rng, cfg)
-        mid_air = seg.stationary and near and held_in_mid_air(seg, rng, cfg, self.support)
-        seg_start = int(frames[0])
-        held = st.held
-        if moving or mid_air:
-            if held is not None and np.linalg.norm(here - held.xyz) <= cfg.merge_radius_m:
-                return  # still where it stood (looked at closely, or the pick-up just begun)
-            if held is not None or not st.runs:
-                self._switch(inst, st, None, seg_start)  # carried: nothing from its first detection
-                st.in_carry = True
-            st.carry.extend(zip(world[-len(world):], camera[-len(camera):]))
-            st.carry_ticks = int(ticks[-1])
-            return
-        if near and st.seg_first_row >= st.chunk_first_row:
-            return  # seen from hand range within one chunk: maybe in hand; wait for a motion-break test
-        if near and st.in_carry and st.carry:
-            # still in hand if, together with the carry before it, it keeps its offset to the head
-            cw = np.concatenate([np.array([w for w, _ in st.carry]), world])
-            cc = np.concatenate([np.array([c for _, c in st.carry]), camera])
-            if moves_with_camera(cw, cc, np.zeros(len(cw)), cfg):
-                return
-        if seg.stationary:
-            kind = STAND
-            if self.cfg.noise.online_auto and seg.n_inliers >= 2:
-                self._residuals.pop((inst, st.segment_id), None)  # newest last: the oldest are dropped
-                self._residuals[(inst, st.segment_id)] = centred(
-                    _mahalanobis2(world[seg.inliers], seg.xyz, info[seg.inliers]))
-                while len(self._residuals) > 64:
-                    self._residuals.pop(next(iter(self._residuals)))
-        elif (seg.n_inliers >= (cfg.provisional_min_observations if st.answered else cfg.first_min_observations)
-              and st.rows.score[st.rows.lo:st.rows.hi][seg.inliers].max() >= cfg.provisional_min_score):
-            kind = LAST_SEEN
-        else:
-            return  # too little at a new place: keep the previous answer
-        inl, inl_ticks = frames[seg.inliers], ticks[seg.inliers]
-        conf = stand_confidence(seg, len(seg.rows), cfg)
-        if held is not None and held.segment_id == st.segment_id:
-            # the same segment, refined (a last-seen place may become a stand; a stand stays one),
-            # unless the estimate came from an earlier, better-supported segment of the same stand
-            held.kind = STAND if STAND in (held.kind, kind) else kind
-            held.last_frame, held.last_seen = int(inl.max()), int(inl_ticks.max())
-            if held.estimate_segment == st.segment_id or seg.n_inliers >= held.n_inliers:
-                held.xyz, held.covariance, held.confidence = seg.xyz, seg.covariance, conf
-                held.n_inliers, held.estimate_segment = seg.n_inliers, st.segment_id
-            return
-        if held is not None and held.kind == STAND and np.linalg.norm(held.xyz - seg.xyz) <= cfg.merge_radius_m:
-            # the held stand again, after a break (a stray detection between): one stand, the
-            # estimate of the better-supported segment
-            held.segment_id, held.last_frame, held.last_seen = st.segment_id, int(inl.max()), int(inl_ticks.max())
-            if kind == STAND and seg.n_inliers >= held.n_inliers:
-                held.xyz, held.covariance, held.confidence, held.n_inliers = seg.xyz, seg.covariance, conf, seg.n_inliers
-                held.estimate_segment = st.segment_id
-            return
-        if kind == LAST_SEEN and held is not None and held.kind == STAND:
-            return  # a held stand gives way to another stand, a carry or an empty place, not to a glimpse
-        if cfg.causal_exclusion and self._claimed(inst, seg.xyz, seg.n_inliers):
-            return  # another instance's better-supported answer is there: a look-alike confusion
-        hyp = Hypothesis(inst, kind, seg.xyz, seg.covariance, conf, seg.n_inliers, int(inl.min()),
-                         int(inl.max()), int(inl_ticks.min()), int(inl_ticks.max()), st.segment_id, st.segment_id)
-        same_place = held is not None and np.linalg.norm(held.xyz - seg.xyz) <= cfg.merge_radius_m
-        if same_place:
-            valid_from = None
-        elif not st.runs:
-            valid_from = 0  # an instance's first hypothesis: it was there before it was first seen
-        elif held is None:
-            valid_from = max(seg_start, st.runs[-1].start)  # not back into a carry or an empty place
-        else:
-            valid_from = seg_start
-        self._switch(inst, st, hyp, valid_from)
+    @staticmethod
+    def _lead_probability(st: _Instance) -> float:
+        """The leading state's share of the frame's max-product scores (its max-marginal)."""
+        return float(1.0 / np.exp(st.delta - np.max(st.delta)).sum())
 
-    def _switch(self, inst: int, st: _Instance, hyp: Hypothesis | None, valid_from: int | None) -> None:
-        """Answer ``hyp`` from now on, and from ``valid_from`` for frames not yet emitted (None: now)."""
-        if st.held is not None and hyp is not st.held and not st.held.ended_by:
-            st.held.ended_by = "detection" if hyp is not None else "carried"
-        st.held = hyp
-        if hyp is not None:
-            st.answered = True
-            st.in_carry = False
-            st.carry.clear()
-        oldest = self.pending[0][0] if self.pending else self.last_frame
-        start = max(self.last_frame if valid_from is None else valid_from, oldest)
-        while st.runs and st.runs[-1].start >= start:
-            st.runs.pop()
-        st.runs.append(_Run(start, hyp))
+    def _answer(self, inst: int, st: _Instance, state: int, next_kind: int | None, ts: int,
+                lead: float | None = None) -> Prediction | None:
+        """The prediction of a state at frame time ``ts`` (None: nothing to report): a place's
+        current centre; at a place not yet seen, the place the sequence goes to next (lagged) or,
+        ``put_down_after_s`` after the last detection in hand, where the hand held the object.
+        ``lead``: for the newest frame, the state's max-marginal; below
+        ``places.min_answer_probability`` nothing is answered (later evidence may still, lagged)."""
+        if lead is not None and lead < self.cfg.places.min_answer_probability:
+            return None
+        kind = state_kind(state)
+        if kind >= 0:
+            return self._place_prediction(inst, st, kind, lead)
+        if kind == -2:
+            if next_kind is not None and next_kind >= 0:
+                return self._place_prediction(inst, st, next_kind, lead)
+            after = self.cfg.put_down_after_s
+            if after > 0:
+                due = ts - after * TICKS_PER_SECOND
+                held = [xyz for t, xyz in st.hands if t <= ts]
+                if held and next(t for t, _ in reversed(st.hands) if t <= ts) <= due:
+                    return Prediction(inst, tuple(float(v) for v in held[-1]), 0.1)
+        return None
 
-    def _guess_put_down(self, inst: int, st: _Instance, frame: int, ts: int) -> None:
-        """A carry unseen for ``put_down_after_s`` seconds: answer where the hand last held it (the
-        object is put down near where it was last seen carried), as a low-confidence last-seen
-        place, until it is seen again or depth shows that place empty."""
-        if not (st.in_carry and st.held is None and st.carry):
-            return
-        if ts - st.carry_ticks < self.cfg.put_down_after_s * TICKS_PER_SECOND:
-            return
-        world = np.array([w for w, _ in st.carry])[-3:]
-        xyz = np.median(world, axis=0)
-        sigma = self.cfg.put_down_sigma_m
-        hyp = Hypothesis(inst, LAST_SEEN, xyz, sigma**2 * np.eye(3), 0.1, 1, frame, frame, st.carry_ticks,
-                         st.carry_ticks, st.segment_id, st.segment_id)
-        if self.cfg.causal_exclusion and self._claimed(inst, xyz, 1):
-            return
-        self._switch(inst, st, hyp, None)
+    @staticmethod
+    def _place_prediction(inst: int, st: _Instance, k: int, lead: float | None) -> Prediction:
+        """A place's current centre, scored with the state's max-marginal when answered at once, and
+        by its support (inliers n: n / (n + 5)) when answered with a lag."""
+        p = st.places[k]
+        score = lead if lead is not None else p.n / (p.n + 5.0)
+        return Prediction(inst, tuple(float(v) for v in p.xyz), float(score))
 
-    def _claimed(self, inst: int, xyz: np.ndarray, n_inliers: int) -> bool:
-        """Whether another instance's current answer lies within ``exclusion_radius_m`` of ``xyz``
-        with more inlier detections than ``n_inliers`` (its state as of now: causal)."""
-        r = self.cfg.exclusion_radius_m
-        for j, other in self.inst.items():
-            h = other.held
-            if j != inst and h is not None and h.n_inliers > n_inliers and np.linalg.norm(h.xyz - xyz) <= r:
-                return True
-        return False
-
-    def _check_negative(self, inst: int, st: _Instance, frame: int) -> None:
-        """End the held answer when depth shows its place empty (a run of ``min_frames`` empty
-        frames, tested every ``stride`` frames, completed at this frame)."""
-        held, ncfg = st.held, self.cfg.negative
-        if held is None or frame - held.last_frame <= ncfg.stride or frame - st.last_negative_check < ncfg.stride:
-            return
-        st.last_negative_check = frame
-        lo = max(held.last_frame + 1, frame - ncfg.stride * (ncfg.min_frames + 1))
-        gone = self.negative(inst, held.xyz, lo, frame + 1)
-        if gone is not None:
-            held.ended_by = "negative"
-            self._switch(inst, st, None, int(gone))
-
-    # ------------------------------------------------------------------ emission
+    def _held_up(self, p: OnlinePlace) -> bool:
+        """Whether the object could stand at place ``p``: a place of fewer than
+        ``places.support_min_inliers`` inliers needs the scene under it (tested again each time its
+        inliers double)."""
+        if self.support is None or p.n >= self.cfg.places.support_min_inliers:
+            return True
+        if p.supported is None or p.supported[0] * 2 <= p.n:
+            p.supported = (p.n, bool(self.support(p.xyz)))
+        return p.supported[1]
 
     def _emit(self, up_to: int | None) -> None:
-        """Emit pending frames with timestamp <= ``up_to`` (None: all)."""
+        """Emit pending frames with timestamp <= ``up_to`` (None: all): each instance's state there
+        on the most probable sequence up to now."""
+        due = []
         while self.pending and (up_to is None or self.pending[0][1] <= up_to):
-            f, ts = self.pending.popleft()
+            due.append(self.pending.popleft())
+        if not due:
+            return
+        paths = {i: self._backtrack(st, due[0][0]) for i, st in self.inst.items()}
+        for f, ts in due:
             preds = []
             for i in sorted(self.inst):
                 st = self.inst[i]
-                while len(st.runs) > 1 and st.runs[1].start <= f:
-                    st.runs.pop(0)
-                hyp = st.runs[0].hyp if st.runs and st.runs[0].start <= f else None
-                self._extend_span(i, hyp, f, ts)
-                if hyp is not None:
-                    preds.append(hyp.prediction())
+                state, next_kind = paths[i].get(f, (None, None))
+                lead = self._lead_probability(st) if f == self.last_frame else None
+                pred = None if state is None else self._answer(i, st, state, next_kind, ts, lead)
+                self._extend_span(i, st, state, pred, f, ts)
+                if pred is not None:
+                    preds.append(pred)
             self.ready.append((f, ts, preds))
 
-    def _extend_span(self, inst: int, hyp: Hypothesis | None, f: int, ts: int) -> None:
+    def _backtrack(self, st: _Instance, oldest: int) -> dict[int, tuple[int, int | None]]:
+        """frame -> (state, kind of the next place/carry state after its run) on the most probable
+        sequence ending now, for the frames from ``oldest`` on that the back-pointers still cover.
+        Frames before the instance's first detection count as unseen, leading to the sequence's
+        first state (a lagged answer back-fills the first place)."""
+        out = {}
+        state = int(np.argmax(st.delta))
+        next_kind = None
+        first = None
+        for f, b in reversed(st.back):
+            if f < oldest:
+                break
+            kind = state_kind(state)
+            out[f] = (state, next_kind if kind == -2 else None)
+            if kind != -2:
+                next_kind = kind
+            first = f
+            state = int(b[state]) if state < len(b) else UNSEEN_STATE
+        if first is not None and first == st.back[0][0] and st.back[0][0] == st.created:
+            for f in range(oldest, first):
+                out[f] = (UNSEEN_STATE, next_kind)
+        return out
+
+    def _extend_span(self, inst: int, st: _Instance, state: int | None, pred: Prediction | None, f: int,
+                     ts: int) -> None:
+        kind = None if state is None else state_kind(state)
+        place = st.places[kind] if kind is not None and kind >= 0 else None
         span = self._open.get(inst)
-        if span is not None and span[0] is hyp:
-            span[3], span[4] = f, ts
+        if span is not None and place is not None and span[1] is place:
+            span[4], span[5] = f, ts
             return
         self._close_span(inst)
-        if hyp is not None and hyp.kind == STAND:
-            self._open[inst] = [hyp, f, ts, f, ts]
+        if place is not None:
+            self._open[inst] = [inst, place, f, ts, f, ts, pred.score if pred is not None else 1.0]
 
     def _close_span(self, inst: int) -> None:
         span = self._open.pop(inst, None)
-        if span is not None and span[0].kind == STAND:
+        if span is not None:
             self.spans.append(tuple(span))
-
-
-def _stand_around(xyz: np.ndarray, world: np.ndarray, cov: np.ndarray, info: np.ndarray, camera: np.ndarray,
-                  range_m: np.ndarray, cfg: GraphConfig) -> tuple[Segment, bool, bool]:
-    """The offline stand test around a given centre (iSAM2's newest landmark) without a robust
-    re-solve: the centre becomes the information-weighted mean of the inliers around ``xyz``,
-    its covariance the inverse of their summed information. Also whether the rows move with the
-    head (a carry), and whether they were seen from hand range (median range <= carry_range_m)."""
-    rows = np.arange(len(world))
-    inl = _mahalanobis2(world, xyz, info) <= cfg.inlier_chi2
-    c = cov[0]
-    for _ in range(2):
-        if not inl.any():
-            break
-        c = np.linalg.inv(info[inl].sum(axis=0))
-        xyz = c @ np.einsum("mij,mj->i", info[inl], world[inl])
-        inl = _mahalanobis2(world, xyz, info) <= cfg.inlier_chi2
-    seg = Segment(rows, xyz, c, inl)
-    near = bool(np.median(range_m) <= cfg.carry_range_m)
-    moving = near and moves_with_camera(world, camera, range_m, cfg)
-    seg.stationary = is_stand(seg, moving, cfg)
-    carried = moving and int((range_m <= cfg.carry_range_m).sum()) >= cfg.min_carry_observations
-    return seg, carried, near
 
 
 def run_online(obs: Observations, t_frames: np.ndarray, cfg: GraphConfig, *, lag_s: float | None = None,
@@ -559,4 +631,3 @@ def run_online(obs: Observations, t_frames: np.ndarray, cfg: GraphConfig, *, lag
     for g, t, preds in trk.finish():
         out[t] = preds
     return out, trk
-

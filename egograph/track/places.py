@@ -1,0 +1,466 @@
+"""Places, and the place chain: where an instance can stand, and where it stands at every frame.
+
+The landmark chain (:mod:`egograph.track.chain`) cuts an instance's timeline into *segments* at
+motion breaks. With a sparse or noisy front-end a stand falls apart into many short segments (a
+lone false match between two true ones is two breaks), so a segment alone is poor evidence. A
+*place* pools every segment at one location across the whole recording (:func:`candidate_places`):
+a segment joins a place when the place already explains (inlier gate) at least ``places.overlap``
+of its inliers, or of the place's, or lies within ``merge_radius_m``; the place is then re-solved
+as one landmark over all its inliers (GTSAM, robust). A place needs ``min_observations`` inliers
+and, with fewer than ``places.support_min_inliers``, a surface under it: an object rests on
+something, and a few alias-wrapped or hand-held detections in mid-air are not a place.
+
+Two objects cannot stand in one place at once (:func:`claim_places`): a place within
+``exclusion_radius_m`` of another instance's place with more inliers, over overlapping times,
+belongs to that instance (a look-alike), and its detections become false-match evidence.
+
+The *place chain* (:func:`place_chain`) is a hidden Markov chain over the PV frames whose states
+are the instance's places, ``CARRIED`` (in hand: nothing to report) and ``UNSEEN`` (put down
+where it was never seen again: reported where the hand last held it, at low confidence).
+Each accepted detection is, with probability ``places.true_share``, the object (near the place,
+with the detection covariance plus the place's, the nearest AHAT alias candidate; near the head
+when carried), otherwise a false match: spread over the scene (``places.false_density`` per m^3)
+and, for ``places.lookalike_share`` of them, at another instance's place. Frames without a
+detection say nothing. Transition rates per second: pick-ups (``pick_up_rate``), carries ending
+(``1/carry_s``), a share of them at a place never seen again (``unseen_put_down``), moves nobody
+saw (``unseen_move_rate``). Offline, the instance is where the most probable state sequence puts
+it (:func:`map_path`: Viterbi in log space, the MPE of the same chain as a GTSAM
+``DiscreteFactorGraph``, which the tests check), and each run of a state gets its posterior
+probability (:func:`posterior`: forward-backward) as confidence. World frame, metres; PV frame
+indices.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import Sequence
+
+import numpy as np
+
+from egograph.track.config import GraphConfig
+from egograph.track.detection_factor import detection_covariances, mahalanobis2
+from egograph.track.segments import Segment, SupportFn, make_segment, moves_with_camera, robust_point
+
+CARRIED, UNSEEN = "carried", "unseen"
+"""The two states of the place chain besides the places themselves."""
+
+
+@dataclass(eq=False)  # identity: a place is one location, whatever its numbers
+class Place:
+    """One location an instance stood at: robust centre (world, metres), marginal covariance (m^2,
+    without the floor) and the rows (into the instance's observations) it explains."""
+
+    xyz: np.ndarray
+    covariance: np.ndarray
+    rows: np.ndarray                 # inlier rows, sorted
+    frames: np.ndarray = field(default_factory=lambda: np.zeros(0, np.int64))  # their PV frames
+
+    @property
+    def n_inliers(self) -> int:
+        return len(self.rows)
+
+    @property
+    def span(self) -> tuple[int, int]:
+        """First and last PV frame of its inlier detections."""
+        return int(self.frames.min()), int(self.frames.max())
+
+    def as_segment(self) -> Segment:
+        """The place as a stationary segment of its inliers (for the noise-scale fit and joint mode)."""
+        return Segment(self.rows, self.xyz, self.covariance, np.ones(len(self.rows), bool), stationary=True)
+
+
+# --------------------------------------------------------------------------- places
+
+
+def _gate(world: np.ndarray, cov: np.ndarray, xyz: np.ndarray, cfg: GraphConfig) -> np.ndarray:
+    return mahalanobis2(world, xyz, cov) <= cfg.inlier_chi2
+
+
+def candidate_places(segment_rows: Sequence[np.ndarray], world: np.ndarray, cov: np.ndarray, camera: np.ndarray,
+                     range_m: np.ndarray, frames: np.ndarray, cfg: GraphConfig,
+                     support: SupportFn | None = None) -> list[Place]:
+    """An instance's places from its chain's segments (``segment_rows``: rows of each run of chunks
+    joined by switches that stayed on), strongest first. ``world``/``cov``: each detection after the
+    alias re-choice and its covariance (m, m^2); ``camera``, ``range_m``: where it was seen from."""
+    pc = cfg.places
+    segs = []
+    for rows in segment_rows:
+        if len(rows) == 0:
+            continue
+        seg = make_segment(rows, world, cov, cfg)
+        if seg.n_inliers >= pc.segment_min_inliers and not moves_with_camera(world[rows], camera[rows],
+                                                                            range_m[rows], cfg):
+            segs.append(seg)
+    segs.sort(key=lambda s: (-s.n_inliers, int(s.rows[0])))
+    pooled: list[tuple[np.ndarray, np.ndarray, np.ndarray]] = []   # (xyz, covariance, inlier mask)
+    for seg in segs:
+        mask = _gate(world, cov, seg.xyz, cfg)
+        for k, (xyz, _, have) in enumerate(pooled):
+            shared = int((have & mask).sum())
+            if (shared >= pc.overlap * min(int(have.sum()), int(mask.sum()))
+                    or np.linalg.norm(xyz - seg.xyz) <= cfg.merge_radius_m):
+                rows = np.flatnonzero(have | mask)
+                x, c = robust_point(world[rows], cov[rows], cfg, xyz)
+                pooled[k] = (x, c, _gate(world, cov, x, cfg))
+                break
+        else:
+            core = seg.rows[seg.inliers]
+            x, c = robust_point(world[core], cov[core], cfg, seg.xyz)
+            pooled.append((x, c, _gate(world, cov, x, cfg)))
+    places = []
+    for xyz, c, mask in pooled:
+        rows = np.flatnonzero(mask)
+        if len(rows) < cfg.min_observations:
+            continue
+        if support is not None and len(rows) < pc.support_min_inliers and not support(xyz):
+            continue
+        places.append(Place(xyz, c, rows, frames[rows].astype(np.int64)))
+    places.sort(key=lambda p: (-p.n_inliers, p.span[0]))
+    # pooling can move two places onto one location: keep the stronger
+    out: list[Place] = []
+    for p in places:
+        if all(np.linalg.norm(p.xyz - q.xyz) > cfg.merge_radius_m for q in out):
+            out.append(p)
+    return out
+
+
+def carried_rows(segment_rows: Sequence[np.ndarray], world: np.ndarray, camera: np.ndarray, range_m: np.ndarray,
+                 cfg: GraphConfig) -> np.ndarray:
+    """(M,) bool: detections of segments the chain saw moving with the head (seen from within
+    ``carry_range_m``, :func:`egograph.track.segments.moves_with_camera`) with at least
+    ``min_carry_observations`` of them near: the evidence of a carry."""
+    out = np.zeros(len(world), bool)
+    for rows in segment_rows:
+        near = rows[range_m[rows] <= cfg.carry_range_m]
+        if len(near) >= cfg.min_carry_observations and moves_with_camera(world[rows], camera[rows], range_m[rows], cfg):
+            out[near] = True
+    return out
+
+
+def claim_places(places: dict[int, list[Place]], radius_m: float) -> dict[int, list[Place]]:
+    """Per instance, the places no other instance claims: another instance's place within
+    ``radius_m`` with more inliers whose inliers span overlapping frames (two objects cannot stand
+    in one place at once; the weaker claimant's detections there were look-alike matches)."""
+    if radius_m <= 0:
+        return {i: list(v) for i, v in places.items()}
+    out = {}
+    for i, mine in places.items():
+        keep = []
+        for a in mine:
+            a0, a1 = a.span
+            claimed = any(b.n_inliers > a.n_inliers and np.linalg.norm(a.xyz - b.xyz) <= radius_m
+                          and b.span[0] <= a1 and a0 <= b.span[1]
+                          for j, theirs in places.items() if j != i for b in theirs)
+            if not claimed:
+                keep.append(a)
+        out[i] = keep
+    return out
+
+
+def place_reality(places: dict[int, list[Place]], scores: dict[int, np.ndarray], min_samples: int = 10
+                  ) -> dict[int, list[float]]:
+    """Per instance and place, the probability that the place is the object rather than a spot where
+    false matches persist (a clutter object that looks like it), from the matcher scores of its
+    inliers: the scores of every place's inliers and of every detection no place explains, each
+    fitted with a normal, give a likelihood ratio per inlier (clipped to +-5 nats; prior odds 1).
+    Without ``min_samples`` of each kind every place gets 1."""
+    inl = [scores[i][p.rows] for i, ps in places.items() for p in ps]
+    out_rows = []
+    for i, ps in places.items():
+        mask = np.ones(len(scores[i]), bool)
+        for p in ps:
+            mask[p.rows] = False
+        out_rows.append(scores[i][mask])
+    true = np.concatenate(inl) if inl else np.zeros(0)
+    false = np.concatenate(out_rows) if out_rows else np.zeros(0)
+    if len(true) < min_samples or len(false) < min_samples:
+        return {i: [1.0] * len(ps) for i, ps in places.items()}
+
+    def log_normal(x, sample):
+        mu, sd = float(np.mean(sample)), max(float(np.std(sample)), 0.02)
+        return -0.5 * ((x - mu) / sd) ** 2 - np.log(sd)
+
+    result = {}
+    for i, ps in places.items():
+        result[i] = []
+        for p in ps:
+            s = np.asarray(scores[i][p.rows], float)
+            llr = np.clip(log_normal(s, true) - log_normal(s, false), -5.0, 5.0).sum()
+            result[i].append(float(1.0 / (1.0 + np.exp(-np.clip(llr, -50, 50)))))
+    return result
+
+
+def chance_of_place(place: Place, cov: np.ndarray, n_rows: int, cfg: GraphConfig) -> float:
+    """Probability that ``place``'s inliers are a coincidence: that at least ``n_inliers`` of the
+    instance's other ``n_rows`` detections, scattered as false matches at ``false_density`` per m^3,
+    fall by chance in the place's gate (the ``inlier_chi2`` ellipsoid of its inliers' mean
+    detection covariance ``cov`` (M, 3, 3) m^2): a Poisson tail. Three random matches that happen
+    to meet make a place the chain would otherwise trust as much as thirty."""
+    c = np.mean(cov[place.rows], axis=0)
+    volume = 4.0 / 3.0 * np.pi * cfg.inlier_chi2 ** 1.5 * float(np.sqrt(max(np.linalg.det(c), 0.0)))
+    lam = max(n_rows - place.n_inliers, 0) * volume * cfg.places.false_density
+    k = np.arange(place.n_inliers)
+    log_terms = -lam + k * np.log(max(lam, 1e-300)) - np.cumsum(np.log(np.maximum(k, 1)))
+    return float(np.clip(1.0 - np.exp(np.logaddexp.reduce(log_terms)), 0.0, 1.0)) if lam > 0 else 0.0
+
+
+# --------------------------------------------------------------------------- the place chain
+
+
+def log_gauss_spots(cands: np.ndarray, cov: np.ndarray, xyz: np.ndarray, spot_cov: np.ndarray) -> np.ndarray:
+    """(M, P): per detection and spot, the largest log N(c; xyz_p, C_c + spot_cov_p) over the
+    detection's alias candidates ``c`` (``cands`` (M, C, 3), NaN padded, world metres) with their
+    covariances ``cov`` (M, C, 3, 3) m^2; ``xyz`` (P, 3), ``spot_cov`` (P, 3, 3): the candidate that
+    best explains each spot."""
+    m, c = cands.shape[:2]
+    p = len(xyz)
+    if p == 0 or m == 0:
+        return np.full((m, p), -np.inf)
+    ok = np.isfinite(cands[..., 0])                                   # (M, C)
+    d = np.where(ok[:, None, :, None], cands[:, None] - xyz[None, :, None], 0.0)          # (M, P, C, 3)
+    total = cov[:, None] + spot_cov[None, :, None]                                         # (M, P, C, 3, 3)
+    total = np.where(ok[:, None, :, None, None], total, np.eye(3))
+    q = np.einsum("mpci,mpci->mpc", d, np.linalg.solve(total, d[..., None])[..., 0])
+    ll = -0.5 * q - 0.5 * np.linalg.slogdet(total)[1] - 1.5 * np.log(2.0 * np.pi)
+    return np.where(ok[:, None, :], ll, -np.inf).max(axis=2)
+
+
+def candidate_covariances(cands: np.ndarray, camera: np.ndarray, cfg: GraphConfig) -> np.ndarray:
+    """(M, C, 3, 3) detection covariance (m^2) of every alias candidate, at its own range from the
+    depth camera ``camera`` (M, 3) (:func:`egograph.track.detection_factor.detection_covariances`)."""
+    m, c, _ = cands.shape
+    flat = np.nan_to_num(cands.reshape(m * c, 3), nan=0.0)
+    return detection_covariances(flat, np.repeat(camera, c, axis=0), cfg.noise).reshape(m, c, 3, 3)
+
+
+ANY_CARRY, UNSEEN_STATE = 0, 1
+"""Fixed states of the place chain: carried, picked up at no known place; standing at a place not
+(yet) among the instance's places. Place k adds :func:`stand_state` and :func:`carry_state`, so a
+place found later (online) only appends states."""
+
+
+def stand_state(k: int) -> int:
+    """The state 'standing at place k'."""
+    return 2 + 2 * k
+
+
+def carry_state(k: int) -> int:
+    """The state 'carried, picked up at place k'."""
+    return 3 + 2 * k
+
+
+def n_states(k: int) -> int:
+    """States of the place chain of ``k`` places."""
+    return 2 + 2 * k
+
+
+def state_kind(state: int) -> int:
+    """A state as a run kind: its place index (>= 0), -1 for any carry, -2 for UNSEEN."""
+    if state == UNSEEN_STATE:
+        return -2
+    if state == ANY_CARRY or state % 2:
+        return -1
+    return (state - 2) // 2
+
+
+def log_true_share(score: np.ndarray, cfg: GraphConfig) -> np.ndarray:
+    """(M,) log prior probability that each accepted detection is the instance: ``true_share`` at a
+    matcher score of at least ``confident_score``, ``weak_true_share`` below."""
+    pc = cfg.places
+    return np.log(np.where(np.asarray(score, float) >= pc.confident_score, pc.true_share, pc.weak_true_share))
+
+
+def row_log_likelihoods(spots: Sequence[tuple[np.ndarray, np.ndarray, int]], k: int, cands: np.ndarray,
+                        cov: np.ndarray, log_true: np.ndarray, in_hand: np.ndarray, cfg: GraphConfig) -> np.ndarray:
+    """(M, :func:`n_states` (k)) log-likelihood of each detection under each state.
+
+    ``spots``: (xyz, covariance, inliers) of this instance's ``k`` places first, then the other
+    instances' places (where look-alike matches gather; a spot of 0 inliers gathers none); ``cands`` (M, C, 3) alias candidates (world,
+    metres, NaN padded) with covariances ``cov`` (M, C, 3, 3) m^2; ``log_true`` (M,) from
+    :func:`log_true_share`; ``in_hand`` (M,) bool: seen moving with the head.
+
+    A detection is the instance with probability pi (``log_true``): near the place (the alias
+    candidate that fits best) when it stands, at the hand when carried; otherwise a false match,
+    persistent like its cause (a look-alike, a clutter object): ``lookalike_share`` of them at one
+    of the spots, in proportion to its inliers, or at a new spot (weight
+    ``false_spot_concentration``), the rest anywhere (``false_density``). Under UNSEEN a detection
+    is a false match."""
+    pc = cfg.places
+    m = len(log_true)
+    log_false_share = np.log1p(-np.exp(log_true))
+    log_rho = np.log(pc.false_density)
+    if spots:
+        at = log_gauss_spots(cands, cov, np.array([x for x, _, _ in spots], float).reshape(-1, 3),
+                             np.array([c for _, c, _ in spots], float).reshape(-1, 3, 3))
+        n = np.array([n for _, _, n in spots], float)
+    else:
+        at, n = np.zeros((m, 0)), np.zeros(0)
+    with np.errstate(divide="ignore"):
+        at_w = at + np.log(n)                            # log(n_j N_j); a spot of 0 inliers gathers none
+    every = np.logaddexp.reduce(at_w, axis=1) if spots else np.full(m, -np.inf)
+    alpha = pc.false_spot_concentration
+
+    def log_false(skip: int | None) -> np.ndarray:
+        """log density of a false match when the object is not at spot ``skip`` (None: at none):
+        at a spot in proportion to its inliers, or at a new one (``alpha``), as a Chinese restaurant
+        process seats its guests."""
+        if skip is None or n[skip] == 0:
+            spot, total = every, n.sum()
+        else:
+            with np.errstate(divide="ignore", invalid="ignore"):
+                spot = every + np.log1p(-np.minimum(np.exp(at_w[:, skip] - every), 1.0))
+            total = n.sum() - n[skip]
+        alike = np.logaddexp(spot, np.log(alpha) + log_rho) - np.log(total + alpha)
+        return log_false_share + np.logaddexp(np.log1p(-pc.lookalike_share) + log_rho,
+                                              np.log(pc.lookalike_share) + alike)
+
+    out = np.empty((m, n_states(k)))
+    elsewhere = log_false(None)
+    with np.errstate(divide="ignore"):
+        hand = np.where(in_hand, np.log(pc.carry_density), -np.inf)
+    carried = np.logaddexp(log_true + hand, elsewhere)
+    out[:, ANY_CARRY] = carried
+    out[:, UNSEEN_STATE] = elsewhere
+    for j in range(k):
+        out[:, stand_state(j)] = np.logaddexp(log_true + at[:, j], log_false(j))
+        out[:, carry_state(j)] = carried
+    return out
+
+
+def carry_states(k: int) -> np.ndarray:
+    """Indices of every carry state of a chain of ``k`` places."""
+    return np.array([ANY_CARRY] + [carry_state(j) for j in range(k)])
+
+
+def emissions(places: Sequence[Place], others: Sequence[Place], cands: np.ndarray, cov: np.ndarray,
+              score: np.ndarray, frames: np.ndarray, in_hand: np.ndarray, n_frames: int,
+              cfg: GraphConfig) -> np.ndarray:
+    """(n_frames, :func:`n_states`) log-likelihood of each frame's accepted detections under each
+    state (:func:`row_log_likelihoods`; ``score`` (M,) matcher scores, ``frames`` (M,) PV indices).
+    A frame without a detection in hand says little of where a standing object is, but a carried
+    object is in front of the eyes: carry states pay ``log(1 - carry_detect_rate)`` on it."""
+    k = len(places)
+    spots = [(p.xyz, p.covariance, p.n_inliers) for p in list(places) + list(others)]
+    per_row = row_log_likelihoods(spots, k, cands, cov, log_true_share(score, cfg), in_hand, cfg)
+    out = np.zeros((n_frames, n_states(k)))
+    np.add.at(out, frames, per_row)
+    held = np.zeros(n_frames, bool)
+    held[frames[in_hand]] = True
+    out[np.ix_(~held, carry_states(k))] += np.log1p(-cfg.places.carry_detect_rate)
+    return out
+
+
+def transitions(k: int, cfg: GraphConfig, fps: float) -> tuple[np.ndarray, np.ndarray]:
+    """Log transition matrix (from, to) between consecutive frames at ``fps`` and the log prior of
+    the first frame over the :func:`n_states` states (rates per second: module doc). A carry
+    remembers the place it began at: it ends back there with probability ``put_back``, at the
+    object's other places, or (``unseen_put_down``) at a place it is never seen at."""
+    pc = cfg.places
+    dt = 1.0 / fps
+    lift = pc.pick_up_rate * dt
+    drop = dt / pc.carry_s
+    move = pc.unseen_move_rate * dt if k > 1 else 0.0
+    a = np.zeros((n_states(k), n_states(k)))
+    stands = [stand_state(j) for j in range(k)]
+    for j in range(k):
+        sj, cj = stand_state(j), carry_state(j)
+        if k > 1:
+            a[sj, stands] = move / (k - 1)
+        a[sj, sj] = 1.0 - lift - move
+        a[sj, cj] = lift
+        a[cj, cj] = 1.0 - drop
+        a[cj, sj] = drop * pc.put_back
+        elsewhere = drop * (1.0 - pc.put_back - pc.unseen_put_down)
+        if k > 1:
+            a[cj, [s for s in stands if s != sj]] = elsewhere / (k - 1)
+            a[cj, UNSEEN_STATE] = drop * pc.unseen_put_down
+        else:
+            a[cj, UNSEEN_STATE] = drop * pc.unseen_put_down + elsewhere
+    a[ANY_CARRY, ANY_CARRY] = 1.0 - drop
+    if k:
+        a[ANY_CARRY, stands] = drop * (1.0 - pc.unseen_put_down) / k
+        a[ANY_CARRY, UNSEEN_STATE] = drop * pc.unseen_put_down
+    else:
+        a[ANY_CARRY, UNSEEN_STATE] = drop
+    a[UNSEEN_STATE, UNSEEN_STATE] = 1.0 - lift
+    a[UNSEEN_STATE, ANY_CARRY] = lift
+    prior = np.zeros(n_states(k))
+    prior[[ANY_CARRY, UNSEEN_STATE]] = pc.start_unknown / 2 if k else 0.5
+    if k:
+        prior[stands] = (1.0 - pc.start_unknown) / k
+    with np.errstate(divide="ignore"):
+        return np.log(a), np.log(prior)
+
+
+def map_path(log_e: np.ndarray, log_a: np.ndarray, log_prior: np.ndarray) -> np.ndarray:
+    """The most probable state per frame (Viterbi in log space): (T,) state indices. Ties go to the
+    lower state index, so the path is deterministic."""
+    t_len, s = log_e.shape
+    back = np.zeros((t_len, s), np.int32)
+    v = log_prior + log_e[0]
+    for t in range(1, t_len):
+        m = v[:, None] + log_a
+        back[t] = np.argmax(m, axis=0)
+        v = m[back[t], np.arange(s)] + log_e[t]
+    path = np.empty(t_len, np.int32)
+    path[-1] = int(np.argmax(v))
+    for t in range(t_len - 1, 0, -1):
+        path[t - 1] = back[t, path[t]]
+    return path
+
+
+def posterior(log_e: np.ndarray, log_a: np.ndarray, log_prior: np.ndarray) -> np.ndarray:
+    """(T, S) posterior probability of each state per frame given every frame (forward-backward,
+    log space)."""
+    t_len, s = log_e.shape
+    fwd = np.empty((t_len, s))
+    bwd = np.zeros((t_len, s))
+    fwd[0] = log_prior + log_e[0]
+    for t in range(1, t_len):
+        fwd[t] = np.logaddexp.reduce(fwd[t - 1][:, None] + log_a, axis=0) + log_e[t]
+    for t in range(t_len - 2, -1, -1):
+        bwd[t] = np.logaddexp.reduce(log_a + (log_e[t + 1] + bwd[t + 1])[None, :], axis=1)
+    g = fwd + bwd
+    g -= np.logaddexp.reduce(g, axis=1)[:, None]
+    return np.exp(g)
+
+
+@dataclass
+class PlaceRun:
+    """A run of frames ``[start, end]`` (PV indices, inclusive) in one state of the place chain:
+    ``place`` (index into the places) or -1 for a carry / -2 for UNSEEN; ``confidence``: the mean
+    posterior probability of that state over the run."""
+
+    start: int
+    end: int
+    place: int
+    confidence: float
+
+
+def state_runs(path: np.ndarray, post: np.ndarray | None, k: int) -> list[PlaceRun]:
+    """Runs of one kind (a place, any carry, UNSEEN) of a place-chain path over ``k`` places, each
+    with the mean posterior probability of its kind (every carry state summed)."""
+    if len(path) == 0:
+        return []
+    kinds = np.array([state_kind(s) for s in range(n_states(k))])
+    kind = kinds[path]
+    cuts = np.flatnonzero(np.diff(kind)) + 1
+    starts = np.concatenate([[0], cuts])
+    ends = np.concatenate([cuts - 1, [len(path) - 1]])
+    out = []
+    for a, b in zip(starts, ends):
+        c = int(kind[a])
+        cols = np.flatnonzero(kinds == c)
+        conf = float(post[a:b + 1][:, cols].sum(axis=1).mean()) if post is not None else 1.0
+        out.append(PlaceRun(int(a), int(b), c, conf))
+    return out
+
+
+def place_chain(places: Sequence[Place], others: Sequence[Place], cands: np.ndarray, cov: np.ndarray,
+                score: np.ndarray, frames: np.ndarray, in_hand: np.ndarray, n_frames: int, cfg: GraphConfig,
+                fps: float) -> list[PlaceRun]:
+    """An instance's place chain solved offline: its runs (MAP path) with their posterior confidence."""
+    log_e = emissions(places, others, cands, cov, score, frames, in_hand, n_frames, cfg)
+    log_a, log_prior = transitions(len(places), cfg, fps)
+    path = map_path(log_e, log_a, log_prior)
+    return state_runs(path, posterior(log_e, log_a, log_prior), len(places))

@@ -1,0 +1,139 @@
+"""Places pooled across motion breaks and the place chain (egograph.track.places)."""
+
+from __future__ import annotations
+
+import itertools
+
+import gtsam
+import numpy as np
+import pytest
+
+from egograph.track.config import GraphConfig
+from egograph.track.detection_factor import detection_covariances
+from egograph.track.places import (
+    ANY_CARRY,
+    UNSEEN_STATE,
+    Place,
+    candidate_places,
+    claim_places,
+    map_path,
+    n_states,
+    place_chain,
+    posterior,
+    stand_state,
+    transitions,
+)
+
+CFG = GraphConfig(negative_evidence=False)
+
+
+def random_chain(rng, t_len: int, s: int):
+    log_e = rng.normal(0.0, 2.0, (t_len, s))
+    a = rng.uniform(0.0, 1.0, (s, s)) + 8.0 * np.eye(s)
+    a /= a.sum(axis=1, keepdims=True)
+    prior = rng.uniform(0.1, 1.0, s)
+    return log_e, np.log(a), np.log(prior / prior.sum())
+
+
+def test_map_path_is_the_mpe_of_the_same_chain_as_a_gtsam_discrete_factor_graph():
+    rng = np.random.default_rng(3)
+    log_e, log_a, log_prior = random_chain(rng, 60, 6)
+    graph = gtsam.DiscreteFactorGraph()
+    keys = [(t, 6) for t in range(60)]
+    graph.add(keys[0], list(np.exp(log_prior + log_e[0] - (log_prior + log_e[0]).max())))
+    for t in range(1, 60):
+        graph.add(keys[t], list(np.exp(log_e[t] - log_e[t].max())))
+        # DecisionTreeFactor over (t-1, t): the first key varies slowest
+        graph.add([keys[t - 1], keys[t]], list(np.exp(log_a).ravel()))
+    mpe = graph.optimize()
+    assert [mpe[t] for t in range(60)] == list(map_path(log_e, log_a, log_prior))
+
+
+def test_posterior_equals_brute_force_enumeration():
+    rng = np.random.default_rng(5)
+    log_e, log_a, log_prior = random_chain(rng, 4, 3)
+    joint = np.zeros((4, 3))
+    for path in itertools.product(range(3), repeat=4):
+        lp = log_prior[path[0]] + log_e[0, path[0]] + sum(log_a[path[t - 1], path[t]] + log_e[t, path[t]]
+                                                          for t in range(1, 4))
+        for t, s in enumerate(path):
+            joint[t, s] += np.exp(lp)
+    joint /= joint.sum(axis=1, keepdims=True)
+    assert np.allclose(posterior(log_e, log_a, log_prior), joint, atol=1e-9)
+
+
+@pytest.mark.parametrize("k", [0, 1, 3])
+def test_transition_rows_are_probabilities(k):
+    log_a, log_prior = transitions(k, CFG, 30.0)
+    assert log_a.shape == (n_states(k), n_states(k))
+    assert np.allclose(np.exp(log_a).sum(axis=1), 1.0) and np.isclose(np.exp(log_prior).sum(), 1.0)
+
+
+def test_a_place_pools_visits_split_by_motion_breaks():
+    """Two visits to one place, the chain broken between them (and by a stray match inside the
+    first): one place holding every detection at it, centred within a centimetre."""
+    rng = np.random.default_rng(0)
+    place = np.array([1.0, 0.8, 2.0])
+    world = np.concatenate([place + 0.01 * rng.standard_normal((6, 3)), [[3.0, 0.9, 0.5]],
+                            place + 0.01 * rng.standard_normal((5, 3)), place + 0.01 * rng.standard_normal((8, 3))])
+    camera = np.tile([0.0, 1.6, 0.0], (len(world), 1))
+    cov = detection_covariances(world, camera, CFG.noise)
+    segments = [np.arange(0, 6), np.array([6]), np.arange(7, 12), np.arange(12, 20)]
+    places = candidate_places(segments, world, cov, camera, np.linalg.norm(world - camera, axis=1),
+                              np.arange(len(world)) * 10, CFG)
+    assert len(places) == 1
+    assert places[0].n_inliers == 19 and np.linalg.norm(places[0].xyz - place) < 0.01
+
+
+def test_a_look_alike_place_belongs_to_the_instance_with_more_support():
+    here = np.array([1.0, 0.8, 2.0])
+    strong = Place(here, 1e-4 * np.eye(3), np.arange(30), np.arange(30) * 10)
+    weak = Place(here + 0.05, 1e-4 * np.eye(3), np.arange(5), np.arange(10, 15) * 10)
+    elsewhere = Place(here + 2.0, 1e-4 * np.eye(3), np.arange(20), np.arange(20) * 10)
+    kept = claim_places({0: [strong], 1: [weak, elsewhere]}, CFG.exclusion_radius_m)
+    assert kept[0] == [strong] and kept[1] == [elsewhere]
+    # no overlap in time: both stood there, one after the other
+    later = Place(here + 0.05, 1e-4 * np.eye(3), np.arange(5), np.arange(400, 405) * 10)
+    assert claim_places({0: [strong], 1: [later]}, CFG.exclusion_radius_m)[1] == [later]
+
+
+def chain_runs(rows, n_frames=600):
+    """Runs of the place chain of one instance whose detections are (frame, xyz, in_hand) rows."""
+    frames = np.array([r[0] for r in rows])
+    world = np.array([r[1] for r in rows], float)
+    in_hand = np.array([r[2] for r in rows], bool)
+    camera = np.tile([0.0, 1.6, 0.0], (len(rows), 1))
+    cov = detection_covariances(world, camera, CFG.noise)
+    places = []
+    for xyz in {tuple(np.round(w, 1)) for w, h in zip(world, in_hand) if not h}:
+        rows_at = np.flatnonzero(np.linalg.norm(world - xyz, axis=1) < 0.1)
+        if len(rows_at) >= 3:
+            places.append(Place(world[rows_at].mean(axis=0), 1e-4 * np.eye(3), rows_at, frames[rows_at]))
+    places.sort(key=lambda p: p.span[0])
+    runs = place_chain(places, [], world[:, None, :], cov[:, None], np.full(len(rows), 0.8), frames, in_hand,
+                       n_frames, CFG, 30.0)
+    return places, runs
+
+
+def test_the_chain_keeps_a_place_through_stray_matches_and_moves_it_after_a_carry():
+    a, b, stray = np.array([1.0, 0.8, 2.0]), np.array([3.0, 0.8, 0.5]), np.array([0.0, 0.9, 4.0])
+    rows = [(f, a, False) for f in range(30, 300, 6)]
+    rows += [(f, stray, False) for f in (100, 103)]          # two persistent false matches elsewhere
+    rows += [(f, np.array([1.5, 1.2, 1.5]) + f * 1e-3, True) for f in range(300, 360, 3)]  # carried
+    rows += [(f, b, False) for f in range(380, 600, 6)]
+    places, runs = chain_runs(sorted(rows, key=lambda r: r[0]))
+    kinds = [r.place for r in runs]
+    at_a = [i for i, p in enumerate(places) if np.linalg.norm(p.xyz - a) < 0.05][0]
+    at_b = [i for i, p in enumerate(places) if np.linalg.norm(p.xyz - b) < 0.05][0]
+    assert kinds == [at_a, -1, at_b]
+    assert runs[0].start == 0 and abs(runs[0].end - 300) <= 6 and abs(runs[2].start - 360) <= 21
+    assert runs[0].confidence > 0.9 and runs[2].confidence > 0.9
+
+
+def test_a_carry_that_ends_out_of_sight_is_unseen_not_back_at_its_start():
+    a = np.array([1.0, 0.8, 2.0])
+    rows = [(f, a, False) for f in range(30, 300, 6)]
+    rows += [(f, np.array([1.5, 1.2, 1.5]) + f * 1e-3, True) for f in range(300, 360, 3)]
+    _, runs = chain_runs(rows)
+    assert [r.place for r in runs] == [0, -1, -2]
+    assert UNSEEN_STATE != ANY_CARRY and stand_state(0) == 2
