@@ -156,6 +156,11 @@ SECTIONS: tuple[Section, ...] = (
             "(`refine.colmap_covariance=false`), on the same recording.",
             f"{PY} tools/bench_refine.py --seeds 1 --frames 300 --rgb --rows +mesh +colmap mesh+colmap "
             "--set selfcheck=false --set colmap_covariance=false --json-tag colmap-fixed"),
+    Section("bench_refine-colmap-every-frame", "COLMAP with every frame a keyframe",
+            "The COLMAP source alone with every frame of the same recording a keyframe "
+            "(`refine.colmap_stride=1`): what the bundle adjustment adds at its densest, and what it costs.",
+            f"{PY} tools/bench_refine.py --seeds 1 --frames 300 --rgb --rows +colmap --set selfcheck=false "
+            "--set colmap_stride=1 --json-tag colmap-every-frame"),
     Section("bench_run", "`egograph run` on Dask: 2 workers against 1, and a kill",
             "4 synthetic sequences x 3000 frames, stages lift, track, eval, trackers memory, kf, graph, once with "
             "one local worker and once with two; then a 2-worker run killed with SIGKILL (scheduler, nanny and "
