@@ -83,6 +83,17 @@ def test_png_checks_fail_on_broken_files(tmp_path):
         decode_png(good[:len(good) // 2])
 
 
+def test_demo_help_and_readme_say_how_long_the_demo_and_the_tests_take():
+    from egograph.cli.main import DEMO_TIMES
+
+    assert re.search(r"demo\.sh took \d+ min .*test\.sh \d+ min", DEMO_TIMES)
+    p = subprocess.run([str(VENV_BIN / "egograph"), "demo", "--help"], capture_output=True, text=True, timeout=120)
+    flat = lambda t: " ".join(t.split())  # noqa: E731
+    assert p.returncode == 0 and flat(DEMO_TIMES) in flat(p.stdout)
+    readme = (Path(__file__).resolve().parents[1] / "README.md").read_text()
+    assert flat(DEMO_TIMES.replace(" `egograph demo --help` says the same.", "")) in flat(readme)
+
+
 @pytest.mark.slow
 def test_the_demo_ends_with_the_path_of_its_pictures(tmp_path):
     out = tmp_path / "demo"
