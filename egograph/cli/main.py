@@ -438,7 +438,7 @@ def cmd_demo(args) -> int:
 # quotes the same sentence (tests/test_demo.py checks).
 DEMO_TIMES = ("On 2 cores shared with other benchmark runs (load average 15-18), bash tools/demo.sh took "
               "8 min 49 s from a fresh clone (creating .venv from pip's cache included; 4 min 20 s of CPU "
-              "time) and bash tools/test.sh 20 min 53 s (834 tests; 9 min 36 s of CPU time); an idle "
+              "time) and bash tools/test.sh 17 min 39 s (835 tests; 10 min 42 s of CPU time); an idle "
               "machine takes less.")
 
 DEMO_EPILOG = """\
