@@ -25,6 +25,7 @@ import os
 import time
 from pathlib import Path
 
+import benchdoc
 import numpy as np
 
 from egograph.core.config import load_config
@@ -99,42 +100,36 @@ def accuracy(seeds, frames, cache, lags, overrides, plot: Path | None = None,
                 counts = evaluate(rec, result).total
                 per_seed[(det_set, name, root.name)] = counts
                 pooled[(det_set, name)] = pooled[(det_set, name)] + counts
-    print(f"Benchmark recordings: seeds {', '.join(map(str, seeds))} x {frames} frames, robust lifting, pooled.\n")
-    th = " | ".join(f"P@{t:g}" for t in THRESHOLDS) + " | " + " | ".join(f"R@{t:g}" for t in THRESHOLDS)
-    print(f"| set | tracker | {th} | L2 (m) |")
-    print("|---|---|" + "---|" * (2 * len(THRESHOLDS) + 1))
-    for (d, n), c in pooled.items():
-        p = " | ".join(f"{100 * v:.1f}" for v in c.precision)
-        r = " | ".join(f"{100 * v:.1f}" for v in c.recall)
-        print(f"| {d} | {n} | {p} | {r} | {c.l2_m:.3f} |")
-    print("\nTargets (graph-causal lag 0):\n")
+    th = [f"P@{t:g}" for t in THRESHOLDS] + [f"R@{t:g}" for t in THRESHOLDS]
+    benchdoc.table("Causal and offline trackers, every threshold", ["set", "tracker", *th, "L2 (m)"],
+                   [[d, n, *(100 * c.precision), *(100 * c.recall), c.l2_m] for (d, n), c in pooled.items()],
+                   ["", "", *[".1f"] * len(th), ".3f"],
+                   note=f"Benchmark recordings: seeds {', '.join(map(str, seeds))} x {frames} frames, robust lifting, "
+                        "pooled.")
+    benchdoc.text("Targets (graph-causal lag 0):\n")
     for d in ("svoe", "mvpe"):
         g, m, k = (pooled[(d, n)] for n in ("graph-causal", "memory", "kf"))
         for base, b in (("memory", m), ("kf", k)):
             pr = bool(np.all(g.precision >= b.precision) and np.all(g.recall >= b.recall))
-            print(f"- {d}: P and R >= {base} at every threshold: {pr}; L2 <= {base}: {g.l2_m <= b.l2_m}")
+            benchdoc.text(f"- {d}: P and R >= {base} at every threshold: {pr}; L2 <= {base}: {g.l2_m <= b.l2_m}")
         ceiling = pooled[(d, "causal ceiling")].recall[0] / max(m.recall[0], 1e-9)
-        print(f"- {d}: R@0.25 / memory = {g.recall[0] / max(m.recall[0], 1e-9):.2f} (target >= 1.2; no causal "
-              f"tracker can pass {ceiling:.2f}); P@0.25 = {100 * g.precision[0]:.1f} % (target >= 90)")
-    print("\nPer seed (P@0.25 / R@0.25 / R@1.5, %):\n")
-    print("| set | tracker | " + " | ".join(r.name for r in roots) + " |")
-    print("|---|---|" + "---|" * len(roots))
-    for d in ("svoe", "mvpe"):
-        for n in ("memory", "kf", "graph-causal", "graph (offline)"):
-            cells = [per_seed[(d, n, r.name)] for r in roots]
-            print(f"| {d} | {n} | " + " | ".join(f"{100 * c.precision[0]:.1f} / {100 * c.recall[0]:.1f} / "
-                                                  f"{100 * c.recall[-1]:.1f}" for c in cells) + " |")
-    print("\nRecall at 0.25 m against lag:\n")
-    print("| set | " + " | ".join(n.replace("graph-causal ", "").replace("graph-causal", "lag 0 s") for n in names[2:])
-          + " |")
-    print("|---|" + "---|" * len(names[2:]))
-    for d in ("svoe", "mvpe"):
-        print(f"| {d} | " + " | ".join(f"{100 * pooled[(d, n)].recall[0]:.1f}" for n in names[2:]) + " |")
+        benchdoc.text(f"- {d}: R@0.25 / memory = {g.recall[0] / max(m.recall[0], 1e-9):.2f} (target >= 1.2; no causal "
+                      f"tracker can pass {ceiling:.2f}); P@0.25 = {100 * g.precision[0]:.1f} % (target >= 90)")
+    print()
+    benchdoc.table("Per seed (P@0.25 / R@0.25 / R@1.5, %)", ["set", "tracker", *(r.name for r in roots)],
+                   [[d, n, *([100 * c.precision[0], 100 * c.recall[0], 100 * c.recall[-1]]
+                             for c in (per_seed[(d, n, r.name)] for r in roots))]
+                    for d in ("svoe", "mvpe") for n in ("memory", "kf", "graph-causal", "graph (offline)")],
+                   ["", "", *["{0:.1f} / {1:.1f} / {2:.1f}"] * len(roots)])
+    benchdoc.table("Recall at 0.25 m against lag",
+                   ["set", *(n.replace("graph-causal ", "").replace("graph-causal", "lag 0 s") for n in names[2:])],
+                   [[d, *(100 * pooled[(d, n)].recall[0] for n in names[2:])] for d in ("svoe", "mvpe")],
+                   ["", *[".1f"] * len(names[2:])])
     if plot is not None:
         plot_lag(plot, lags, {d: [pooled[(d, n)].recall[0] for n in names[2:-1]] for d in ("svoe", "mvpe")},
                  {d: pooled[(d, "memory")].recall[0] for d in ("svoe", "mvpe")}, seeds, frames)
-    print("\nTracking seconds (all recordings, both sets): "
-          + ", ".join(f"{n} {s:.1f}" for n, s in seconds.items()))
+    benchdoc.text("Tracking seconds (all recordings, both sets): "
+                  + ", ".join(f"{n} {s:.1f}" for n, s in seconds.items()))
 
 
 def plot_lag(path: Path, lags, recall: dict, memory: dict, seeds, frames) -> None:
@@ -234,19 +229,20 @@ def latency(n_frames: int, n_instances: int, seed: int) -> None:
     rss_first = rss[:tenth:100].mean() if tenth >= 100 else rss[0]
     rss_last = rss[n_frames - tenth::100][rss[n_frames - tenth::100] > 0].mean() if tenth >= 100 else rss[0]
     load = open("/proc/loadavg").read().split()[0]
-    print(f"\nOnline API latency (load average {load} on {os.cpu_count()} cores): {n_instances} instances, {n_frames} frames of synthetic observations "
-          f"(seed {seed}), step() + collect() per frame\n")
-    print("| frames | median (ms) | p99 (ms) | max (ms) | RSS (MB) |")
-    print("|---|---|---|---|---|")
-    print(f"| all | {1e3 * np.median(dt):.2f} | {1e3 * np.percentile(dt, 99):.2f} | {1e3 * dt.max():.1f} | |")
-    print(f"| first tenth | {1e3 * np.median(first):.2f} | {1e3 * np.percentile(first, 99):.2f} | "
-          f"{1e3 * first.max():.1f} | {rss_first:.0f} |")
-    print(f"| last tenth | {1e3 * np.median(last):.2f} | {1e3 * np.percentile(last, 99):.2f} | "
-          f"{1e3 * last.max():.1f} | {rss_last:.0f} |")
-    print(f"| all, CPU time (process_time) | {1e3 * np.median(cpu):.2f} | {1e3 * np.percentile(cpu, 99):.2f} | "
-          f"{1e3 * cpu.max():.1f} | |")
-    print(f"\nTargets: median <= 5 ms: {np.median(dt) <= 5e-3}; p99 <= 50 ms: {np.percentile(dt, 99) <= 50e-3}; "
-          f"last/first tenth median time {np.median(last) / np.median(first):.2f}x, RSS +{rss_last - rss_first:.0f} MB")
+    print()
+    benchdoc.table("Online API latency per frame (step() + collect())",
+                   ["frames", "median (ms)", "p99 (ms)", "max (ms)", "RSS (MB)"],
+                   [["all", 1e3 * np.median(dt), 1e3 * np.percentile(dt, 99), 1e3 * dt.max(), ""],
+                    ["first tenth", 1e3 * np.median(first), 1e3 * np.percentile(first, 99), 1e3 * first.max(), rss_first],
+                    ["last tenth", 1e3 * np.median(last), 1e3 * np.percentile(last, 99), 1e3 * last.max(), rss_last],
+                    ["all, CPU time (process_time)", 1e3 * np.median(cpu), 1e3 * np.percentile(cpu, 99), 1e3 * cpu.max(),
+                     ""]],
+                   ["", ".2f", ".2f", ".1f", ".0f"],
+                   note=f"Load average {load} on {os.cpu_count()} cores: {n_instances} instances, {n_frames} frames of "
+                        f"synthetic observations (seed {seed}).")
+    benchdoc.text(f"Targets: median <= 5 ms: {np.median(dt) <= 5e-3}; p99 <= 50 ms: {np.percentile(dt, 99) <= 50e-3}; "
+                  f"last/first tenth median time {np.median(last) / np.median(first):.2f}x, RSS "
+                  f"+{rss_last - rss_first:.0f} MB")
 
 
 def main() -> None:
@@ -265,12 +261,15 @@ def main() -> None:
     ap.add_argument("--latency-only", action="store_true")
     ap.add_argument("--no-latency", action="store_true")
     ap.add_argument("--plot", type=Path, help="PNG of recall at 0.25 m against lag")
+    benchdoc.add_arguments(ap, __file__)
     args = ap.parse_args()
+    benchdoc.start(__file__, args)
     if not args.latency_only:
         accuracy(args.seeds, args.frames, args.cache, args.lags, args.overrides, args.plot,
                  {"svoe": args.overrides_svoe, "mvpe": args.overrides_mvpe})
     if not args.no_latency:
         latency(args.stream_frames, args.instances, seed=7)
+    benchdoc.finish()
 
 
 if __name__ == "__main__":

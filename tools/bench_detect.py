@@ -31,6 +31,7 @@ import tempfile
 import time
 from pathlib import Path
 
+import benchdoc
 import numpy as np
 
 REPO = Path(__file__).resolve().parents[1]
@@ -103,10 +104,22 @@ def vit_s14(path: Path, seed: int = 0, depth: int = 12, width: int = 384, heads:
 
 def truth_score(rec, det_dir) -> str:
     """Detections against the generator's true boxes (synthetic recordings only)."""
+    t = truth_counts(rec, det_dir)
+    if t is None:
+        return "no synth_gt: no truth"
+    n_vis, true, n, other, clutter = t
+    return (f"visible instance-frames {n_vis}, true detections {true} ({true / max(n_vis, 1):.2f} of visible; "
+            f"{true / max(n, 1):.2f} of {n} detections), false {other + clutter} (other instance {other}, "
+            f"clutter {clutter})")
+
+
+def truth_counts(rec, det_dir) -> tuple[int, int, int, int, int] | None:
+    """(visible instance-frames, true detections, detections, false on another instance, false on
+    clutter) against the generator's true boxes; None without synth_gt."""
     from egograph.synth.truth import detections_against_truth, own_column
 
     if rec.synth_gt_dir is None:
-        return "no synth_gt: no truth"
+        return None
     with np.load(rec.synth_gt_dir / "instances.npz") as gt:
         n_vis = int((gt["visible"] >= 0.5).sum())
     m = detections_against_truth(rec, det_dir)
@@ -114,10 +127,7 @@ def truth_score(rec, det_dir) -> str:
     on_any = ((m["visible"] >= 0.5) & (m["iou"] >= 0.3)).any(axis=1)
     true, other = int(on_own.sum()), int((on_any & ~on_own).sum())
     n = len(on_own)
-    clutter = n - true - other
-    return (f"visible instance-frames {n_vis}, true detections {true} ({true / max(n_vis, 1):.2f} of visible; "
-            f"{true / max(n, 1):.2f} of {n} detections), false {other + clutter} (other instance {other}, "
-            f"clutter {clutter})")
+    return n_vis, true, n, other, n - true - other
 
 
 def main(argv=None) -> int:
@@ -134,7 +144,9 @@ def main(argv=None) -> int:
     ap.add_argument("--variant", action="append", default=[],
                     help="NAME:KEY=VALUE,... configuration overrides run after each other (repeatable; "
                          "default one run at the defaults)")
+    benchdoc.add_arguments(ap, __file__)
     args = ap.parse_args(argv)
+    benchdoc.start(__file__, args, argv)
 
     from egograph.core.config import load_config
     from egograph.core.resources import default_config
@@ -163,6 +175,7 @@ def main(argv=None) -> int:
     effnet.embedded_model_path()
     print(f"EfficientNet-lite0 conversion (first use): {time.perf_counter() - t:.2f} s")
     variants = [v.partition(":") for v in args.variant] or [("defaults", ":", "")]
+    speed_rows, truth_rows, stages = [], [], []
     for name, _, sets in variants:
         overrides = [kv for kv in sets.split(",") if kv]
         for run in args.runs.split(","):
@@ -181,6 +194,30 @@ def main(argv=None) -> int:
                   "other processes slow the wall clock, not this)")
             print(report.summary())
             print(truth_score(rec, out), flush=True)
+            stages += [k for k in report.seconds if k not in stages]
+            per_stage = {k: 1000 * v / max(report.frames, 1) for k, v in report.seconds.items()}
+            speed_rows.append(([name, run, source, len(rec), len(rec) / wall, 1000 * cpu / len(rec),
+                                os.getloadavg()[0], report.proposals / max(report.frames, 1)], per_stage))
+            t = truth_counts(rec, out)
+            if t is not None:
+                n_vis, true, n, other, clutter = t
+                truth_rows.append([name, run, source, n_vis, [true, true / max(n_vis, 1)], [true, n, true / max(n, 1)],
+                                   other, clutter])
+    print()
+    benchdoc.table("egograph detect: speed per run",
+                   ["variant", "enroll", "proposals", "frames", "frames/s", "CPU ms/frame", "load",
+                    "proposals/frame", *(f"{k} ms/frame" for k in stages)],
+                   [[*row, *(per_stage.get(k) for k in stages)] for row, per_stage in speed_rows],
+                   ["", "", "", "d", ".2f", ".0f", ".1f", ".1f", *[".0f"] * len(stages)],
+                   note=f"Recording {rec_root.name} ({len(rec)} PV frames); frames/s end to end (enrollment and "
+                        "model loading included); CPU ms/frame over all threads; load = load average after the run "
+                        "(other processes slow the wall clock, not the CPU figure); read = waiting for the PNG decode.")
+    if truth_rows:
+        benchdoc.table("egograph detect: detections against the generator's true boxes",
+                       ["variant", "enroll", "proposals", "visible instance-frames", "true (of visible)",
+                        "true / all detections", "false: other instance", "false: clutter"], truth_rows,
+                       ["", "", "", "d", "{0} ({1:.2f})", "{0}/{1} ({2:.2f})", "d", "d"],
+                       note="true: IoU >= 0.3 with the instance's own true box where at least half visible.")
 
     if not args.skip_vit:
         from egograph.frontend.config import FrontendConfig
@@ -191,13 +228,16 @@ def main(argv=None) -> int:
         rng = np.random.default_rng(0)
         crops = [rng.integers(0, 255, (120, 90, 3), dtype=np.uint8) for _ in range(16)]
         enc.embed(crops[:8])
+        vit_rows = []
         for b in (1, 8):
             enc.batch = b
             t = time.perf_counter()
             enc.embed(crops)
             dt = time.perf_counter() - t
-            print(f"ViT-S/14-sized random ONNX encoder ({path.stat().st_size / 1e6:.0f} MB), batch {b}: "
-                  f"{1000 * dt / len(crops):.0f} ms per crop")
+            vit_rows.append([b, 1000 * dt / len(crops), os.getloadavg()[0]])
+        benchdoc.table(f"ViT-S/14-sized random ONNX encoder ({path.stat().st_size / 1e6:.0f} MB): cost per crop",
+                       ["batch", "ms per crop", "load"], vit_rows, ["d", ".0f", ".1f"])
+    benchdoc.finish()
     return 0
 
 

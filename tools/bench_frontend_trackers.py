@@ -21,6 +21,8 @@ import os
 import time
 from pathlib import Path
 
+import benchdoc
+
 from egograph.core.config import load_config
 from egograph.core.errors import InputError
 from egograph.core.resources import config_argument, default_config, synth_config
@@ -65,7 +67,9 @@ def main() -> None:
                     help="egograph configuration: a YAML file or a packaged name (e.g. frontend-mvpe; default: default)")
     ap.add_argument("--set", dest="overrides", action="append", default=[], metavar="KEY=VALUE",
                     help="egograph configuration override (e.g. frontend.similarity_threshold=0.65)")
+    benchdoc.add_arguments(ap, __file__)
     args = ap.parse_args()
+    benchdoc.start(__file__, args)
     os.environ.setdefault("EGOGRAPH_CACHE", str(args.cache / "models"))
 
     roots = rgb_benchmark_set(args.seeds, args.frames, config=synth_config("svoe"), cache=args.cache)
@@ -122,33 +126,37 @@ def main() -> None:
                         sources.append(("detect + 3D guidance", str(out_g), out_g))
     speed = f"detect {frames / t_detect:.1f} frames/s over {frames} frames" if frames else "detections cached"
     print(f"\nRGB recordings: seeds {', '.join(map(str, args.seeds))} x {args.frames} frames; {speed}\n")
-    print("| source | set | true / all detections | tracker | P@0.25 | P@1.5 | R@0.25 | R@1.5 | L2 (m) |")
-    print("|---|---|---|---|---|---|---|---|---|")
+    rows = []
     for (source, det_set, label), c in pooled.items():
         tr, tot = shares[(source, det_set)]
-        print(f"| {source} | {det_set} | {tr} / {tot} ({100 * tr / max(tot, 1):.0f} %) | {label} | "
-              f"{100 * c.precision[0]:.1f} | {100 * c.precision[-1]:.1f} | {100 * c.recall[0]:.1f} | "
-              f"{100 * c.recall[-1]:.1f} | {f'{c.l2_m:.2f}' if c.l2_n else '-'} |")
-    print("\n2D table against 2d_bbox_annot/ (pooled over the annotated pairs of every recording; a pair without "
-          "a box counts as a miss):\n")
-    print("| source | set | AUC | P@20px | P_norm | pairs with a box |")
-    print("|---|---|---|---|---|---|")
-    for (source, det_set), rows in two_d.items():
-        n = sum(r.n for r in rows)
-        mean = {a: sum(getattr(r, a) * r.n for r in rows if r.n) / max(n, 1) for a in ("auc", "precision_20px",
-                                                                                        "norm_precision")}
-        print(f"| {source} | {det_set} | {mean['auc']:.1f} | {mean['precision_20px']:.1f} | "
-              f"{mean['norm_precision']:.1f} | {sum(r.n_detected for r in rows)} / {n} |")
-    print("\nRatios graph + robust / memory + reference (target: SVOE >= 2.5x P and R at 0.25 m, MVPE >= 1.4x, "
-          "L2 <= 0.5x):\n")
+        rows.append([source, det_set, [tr, tot, 100 * tr / max(tot, 1)], label, 100 * c.precision[0],
+                     100 * c.precision[-1], 100 * c.recall[0], 100 * c.recall[-1], c.l2_m if c.l2_n else "-"])
+    benchdoc.table("Trackers on each detection source",
+                   ["source", "set", "true / all detections", "tracker", "P@0.25", "P@1.5", "R@0.25", "R@1.5", "L2 (m)"],
+                   rows, ["", "", "{0} / {1} ({2:.0f} %)", "", ".1f", ".1f", ".1f", ".1f", ".2f"],
+                   note=f"RGB recordings: seeds {', '.join(map(str, args.seeds))} x {args.frames} frames; {speed}.")
+    rows = []
+    for (source, det_set), per_rec in two_d.items():
+        n = sum(r.n for r in per_rec)
+        mean = {a: sum(getattr(r, a) * r.n for r in per_rec if r.n) / max(n, 1) for a in ("auc", "precision_20px",
+                                                                                          "norm_precision")}
+        rows.append([source, det_set, mean["auc"], mean["precision_20px"], mean["norm_precision"],
+                     [sum(r.n_detected for r in per_rec), n]])
+    benchdoc.table("2D table against 2d_bbox_annot/", ["source", "set", "AUC", "P@20px", "P_norm", "pairs with a box"],
+                   rows, ["", "", ".1f", ".1f", ".1f", "{0} / {1}"],
+                   note="Pooled over the annotated pairs of every recording; a pair without a box counts as a miss.")
+    rows = []
     for source in dict.fromkeys(k[0] for k in pooled if not k[0].startswith("SOT")):
         for det_set in args.sets:
             if (source, det_set, PIPELINES[1][0]) not in pooled:
                 continue
             g, m = pooled[(source, det_set, PIPELINES[1][0])], pooled[(source, det_set, PIPELINES[0][0])]
-            ratio = [g.precision[0] / max(m.precision[0], 1e-9), g.recall[0] / max(m.recall[0], 1e-9),
-                     g.l2_m / max(m.l2_m, 1e-9)]
-            print(f"- {source} {det_set}: P@0.25 {ratio[0]:.2f}x, R@0.25 {ratio[1]:.2f}x, L2 {ratio[2]:.2f}x")
+            rows.append([source, det_set, g.precision[0] / max(m.precision[0], 1e-9),
+                         g.recall[0] / max(m.recall[0], 1e-9), g.l2_m / max(m.l2_m, 1e-9)])
+    benchdoc.table("Ratios graph + robust / memory + reference", ["source", "set", "P@0.25", "R@0.25", "L2"], rows,
+                   ["", "", "{:.2f}x", "{:.2f}x", "{:.2f}x"],
+                   note="Target: SVOE >= 2.5x P and R at 0.25 m, MVPE >= 1.4x, L2 <= 0.5x.")
+    benchdoc.finish()
 
 
 if __name__ == "__main__":

@@ -15,9 +15,11 @@ baseline on the same observations as a same-run reference.
 from __future__ import annotations
 
 import argparse
+import sys
 import time
 from pathlib import Path
 
+import benchdoc
 import numpy as np
 
 from egograph.core.config import load_config
@@ -66,11 +68,10 @@ def main() -> None:
     ap.add_argument("--set", dest="det_set", default="mvpe", help="detection set (mvpe has the most detections)")
     ap.add_argument("--cache", type=Path, default=DEFAULT_CACHE)
     ap.add_argument("--repeat", type=int, default=2, help="best of N runs per size")
+    benchdoc.add_arguments(ap, __file__)
     args = ap.parse_args()
-    print("| frames | instances | observations | graph switchable (s) | graph dcs (s) | kf (s) | "
-          "switchable s per 1k frames | intervals |")
-    print("|---|---|---|---|---|---|---|---|")
-    rows = []
+    benchdoc.start(__file__, args)
+    rows, table = [], []
     for n in args.frames:
         obs, ts = long_stream(n, args.det_set, args.cache)
         times = {}
@@ -86,12 +87,20 @@ def main() -> None:
             if name == "switchable":
                 n_iv = len(out.intervals)
         rows.append((n, times["switchable"]))
-        print(f"| {n} | {len(np.unique(obs.instance))} | {len(obs)} | {times['switchable']:.2f} | {times['dcs']:.2f} | "
-              f"{times['kf']:.2f} | {1000 * times['switchable'] / n:.3f} | {n_iv} |", flush=True)
+        table.append([n, len(np.unique(obs.instance)), len(obs), times["switchable"], times["dcs"], times["kf"],
+                      1000 * times["switchable"] / n, times["switchable"] / times["kf"], n_iv])
+        print(f"{n} frames: switchable {times['switchable']:.2f} s", file=sys.stderr, flush=True)
+    benchdoc.table("Offline graph solve time against recording length",
+                   ["frames", "instances", "observations", "graph switchable (s)", "graph dcs (s)", "kf (s)",
+                    "switchable s per 1k frames", "switchable / kf", "intervals"], table,
+                   ["d", "d", "d", ".2f", ".2f", ".2f", ".3f", ".2f", "d"],
+                   note=f"{args.det_set.upper()} observations of the cached benchmark recordings laid end to end; "
+                        f"best of {args.repeat} runs per size; without negative evidence.")
     if len(rows) >= 2:
         (n0, t0), (n1, t1) = rows[0], rows[-1]
-        print(f"\ngrowth {n0} -> {n1} frames: time x{t1 / t0:.1f} for length x{n1 / n0:.0f} "
-              f"(exponent {np.log(t1 / t0) / np.log(n1 / n0):.2f}; 1 = linear)")
+        benchdoc.text(f"growth {n0} -> {n1} frames: time x{t1 / t0:.1f} for length x{n1 / n0:.0f} "
+                      f"(exponent {np.log(t1 / t0) / np.log(n1 / n0):.2f}; 1 = linear)")
+    benchdoc.finish()
 
 
 if __name__ == "__main__":

@@ -25,6 +25,7 @@ import argparse
 import time
 from pathlib import Path
 
+import benchdoc
 import numpy as np
 
 from egograph.core.config import load_config
@@ -67,7 +68,9 @@ def main() -> None:
                     help="generator override for the benchmark set (a separate cached set)")
     ap.add_argument("--set", dest="overrides", action="append", default=[], help="pipeline override")
     ap.add_argument("--out", type=Path, default=REPO / ".cache" / "bench_joint")
+    benchdoc.add_arguments(ap, __file__)
     args = ap.parse_args()
+    benchdoc.start(__file__, args)
     cfg = load_config(EgographConfig, default_config(), args.overrides)
     cfg_nomesh = load_config(EgographConfig, default_config(), [*args.overrides, "refine.mesh=false"])
     roots = benchmark_set(args.seeds, args.frames, config=SYNTH_CONFIG, overrides=args.synth_overrides,
@@ -123,24 +126,28 @@ def main() -> None:
                             f"{jp.report['detection_factors']} factors]")
         print("; ".join(line), flush=True)
 
-    def mean_ate(key) -> str:
+    def mean_ate(key) -> list:
         es = ate[key]
-        return (f"{100 * np.mean([e.ate_rmse_m for e in es]):.2f} | {100 * np.mean([e.ate_rmse_aligned_m for e in es]):.2f} | "
-                f"{np.mean([e.ate_rmse_m for e in es]) / np.mean([e.ate_rmse_m for e in ate[('reported', '-')]]):.2f}")
+        return [100 * np.mean([e.ate_rmse_m for e in es]), 100 * np.mean([e.ate_rmse_aligned_m for e in es]),
+                np.mean([e.ate_rmse_m for e in es]) / np.mean([e.ate_rmse_m for e in ate[('reported', '-')]])]
 
-    print(f"\nBenchmark set: {len(roots)} recordings x {args.frames} frames (seeds {', '.join(map(str, args.seeds))}); "
-          "ATE of the PV poses (mean over recordings; ratio against reported), graph tracker P/R at 0.25 m "
-          "(pooled), true intervals recovered\n")
-    print("| poses | det. set | ATE (cm) | ATE aligned (cm) | ATE ratio | P@0.25 | R@0.25 | intervals |")
-    print("|---|---|---|---|---|---|---|---|")
+    print()
+    rows = []
     for row in ROWS:
         for det_set in ("svoe", "mvpe"):
             c, t = reports[det_set][row].total, tallies[(det_set, row)]
             k = list(c.thresholds).index(0.25)
-            p, r = 100 * c.precision[k], 100 * c.recall[k]
             key = (row, det_set) if (row, det_set) in ate else (row, "-")
-            print(f"| {row} | {det_set} | {mean_ate(key)} | {p:.1f} | {r:.1f} | {t.obs_recovered}/{t.obs_true} |")
-    print("\ntime (s, whole set): " + ", ".join(f"{k} {v:.1f}" for k, v in secs.items()))
+            rows.append([row, det_set, *mean_ate(key), 100 * c.precision[k], 100 * c.recall[k],
+                         [t.obs_recovered, t.obs_true]])
+    benchdoc.table("Joint mode: PV pose error and the graph tracker per pose source",
+                   ["poses", "det. set", "ATE (cm)", "ATE aligned (cm)", "ATE ratio", "P@0.25", "R@0.25", "intervals"],
+                   rows, ["", "", ".2f", ".2f", ".2f", ".1f", ".1f", "{0}/{1}"],
+                   note=f"Benchmark set: {len(roots)} recordings x {args.frames} frames (seeds "
+                        f"{', '.join(map(str, args.seeds))}); ATE of the PV poses (mean over recordings; ratio "
+                        "against reported), graph tracker P/R at 0.25 m (pooled), true intervals recovered.")
+    benchdoc.text("time (s, whole set): " + ", ".join(f"{k} {v:.1f}" for k, v in secs.items()))
+    benchdoc.finish()
 
 
 if __name__ == "__main__":

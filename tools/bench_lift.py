@@ -21,6 +21,7 @@ import time
 from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
 
+import benchdoc
 import numpy as np
 
 from egograph.core.resources import synth_config
@@ -60,12 +61,17 @@ def row_stats(rec: Recording, obs, det_set: str) -> dict[str, np.ndarray]:
     return {"err": err, "true": true, "valid": obs.valid, "moving": moving}
 
 
-def error_line(name: str, rows: dict[str, np.ndarray], mask: np.ndarray) -> str:
+ERROR_COLUMNS = ["mode", "lifted / true", "median", "mean", "p90", "med rest", "carried (count)"]
+ERROR_FORMATS = ["", "{0}/{1}", ".3f", ".3f", ".3f", ".3f", "{0:.3f} ({1})"]
+
+
+def error_line(name: str, rows: dict[str, np.ndarray], mask: np.ndarray) -> list:
+    """One row of an error table (ERROR_COLUMNS): metres; carried = object in hand."""
     e, mv = rows["err"][mask], rows["moving"][mask]
     rest = np.median(e[~mv]) if (~mv).any() else float("nan")
     car = np.median(e[mv]) if mv.any() else float("nan")
-    return (f"{name:22s} {mask.sum():6d}/{rows['true'].sum():<6d} {np.median(e):7.3f} {e.mean():7.3f} "
-            f"{np.percentile(e, 90):7.3f} {rest:8.3f} {car:8.3f} ({mv.sum()})")
+    return [name, [mask.sum(), rows["true"].sum()], np.median(e), e.mean(), np.percentile(e, 90), rest,
+            [car, mv.sum()]]
 
 
 def main() -> None:
@@ -75,7 +81,9 @@ def main() -> None:
     ap.add_argument("--cache", type=Path, default=REPO / ".cache" / "bench_lift",
                     help="where generated recordings are kept and reused")
     ap.add_argument("--set", dest="det_set", default="svoe", help="detection set to lift (svoe or mvpe)")
+    benchdoc.add_arguments(ap, __file__)
     args = ap.parse_args()
+    benchdoc.start(__file__, args)
 
     modes = {"robust": LiftConfig(), "reference": LiftConfig(mode="reference"),
              "robust, true poses": LiftConfig(), "reference, true poses": LiftConfig(mode="reference")}
@@ -110,41 +118,46 @@ def main() -> None:
     cat = {m: {k: np.concatenate([r[k] for r in rs]) for k in rs[0]} for m, rs in rows.items()}
     rob, ref = cat["robust"], cat["reference"]
 
-    print(f"\n{len(args.seeds)} recording(s) x {args.frames} frames, detection set {args.det_set}")
-    print("\n3D error of lifted TRUE detections vs synth_gt (metres); carried = object in hand (count)")
-    print(f"{'mode':22s} {'lifted/true':>13s} {'median':>7s} {'mean':>7s} {'p90':>7s} {'med rest':>8s} {'carried':>8s}")
-    for name, r in cat.items():
-        print(error_line(name, r, r["true"] & r["valid"]))
+    print(f"\n{len(args.seeds)} recording(s) x {args.frames} frames, detection set {args.det_set}\n")
+    benchdoc.table(f"{args.det_set.upper()}: 3D error of lifted true detections vs synth_gt (m)", ERROR_COLUMNS,
+                   [error_line(name, r, r["true"] & r["valid"]) for name, r in cat.items()], ERROR_FORMATS,
+                   note=f"{len(args.seeds)} recording(s) x {args.frames} frames (seeds {', '.join(map(str, args.seeds))}); "
+                        "carried = object in hand (median error, count); \"true poses\" = the lifting error alone.")
+    common_rows, ratios = [], []
     for suffix in ("", ", true poses"):
         rob_s, ref_s = cat["robust" + suffix], cat["reference" + suffix]
         common = rob_s["true"] & rob_s["valid"] & ref_s["valid"]
-        print(f"-- on the true detections both modes lift{suffix}:")
-        print(error_line("robust" + suffix, rob_s, common))
-        print(error_line("reference" + suffix, ref_s, common))
+        common_rows += [error_line("robust" + suffix, rob_s, common), error_line("reference" + suffix, ref_s, common)]
         e_rob, e_ref = rob_s["err"][common], ref_s["err"][common]
-        print(f"reference / robust on those: median x{np.median(e_ref) / np.median(e_rob):.1f}, "
-              f"mean x{e_ref.mean() / e_rob.mean():.1f}")
+        ratios.append(f"reference / robust{suffix}: median x{np.median(e_ref) / np.median(e_rob):.1f}, "
+                      f"mean x{e_ref.mean() / e_rob.mean():.1f}")
+    benchdoc.table(f"{args.det_set.upper()}: on the true detections both modes lift (m)", ERROR_COLUMNS, common_rows,
+                   ERROR_FORMATS, note="; ".join(ratios))
     only_ref = rob["true"] & ~rob["valid"] & ref["valid"]
     e_only = np.median(ref["err"][only_ref]) if only_ref.any() else float("nan")
-    print(f"true detections robust mode does not lift: {(rob['true'] & ~rob['valid']).sum()} (reference lifts "
-          f"{only_ref.sum()} of them, median error {e_only:.2f} m)")
-
-    print("\nspeed (lifting loop; set-up excluded, shown apart)")
-    print(f"{'mode':20s} {'frames/s':>9s} {'dets/s':>8s} {'ms/frame':>9s} {'set-up s':>9s}")
+    benchdoc.text(f"true detections robust mode does not lift: {(rob['true'] & ~rob['valid']).sum()} (reference lifts "
+                  f"{only_ref.sum()} of them, median error {e_only:.2f} m)")
+    print()
+    speed_rows = []
     for name in ("robust", "reference"):
         a = speed[name]
-        print(f"{name:20s} {a['frames'] / a['loop_s']:9.1f} {a['dets'] / a['loop_s']:8.1f} "
-              f"{1000 * a['loop_s'] / a['frames']:9.2f} {a['setup_s']:9.2f}")
-    print(f"{'PNG decode only':20s} {floor_frames / floor_s:9.1f} {'':8s} {1000 * floor_s / floor_frames:9.2f}")
-    print(f"{f'PNG decode, {threads} threads':20s} {floor_frames / floor_mt_s:9.1f} {'':8s} "
-          f"{1000 * floor_mt_s / floor_frames:9.2f}")
+        speed_rows.append([name, a["frames"] / a["loop_s"], a["dets"] / a["loop_s"], 1000 * a["loop_s"] / a["frames"],
+                           a["setup_s"]])
+    speed_rows.append(["PNG decode only", floor_frames / floor_s, "", 1000 * floor_s / floor_frames, ""])
+    speed_rows.append([f"PNG decode, {threads} threads", floor_frames / floor_mt_s, "",
+                       1000 * floor_mt_s / floor_frames, ""])
     r, f = speed["robust"], speed["reference"]
     ratio = (f["loop_s"] / f["frames"]) / (r["loop_s"] / r["frames"])
     cap = (f["loop_s"] / f["frames"]) / (floor_mt_s / floor_frames)
-    print(f"robust is x{ratio:.1f} faster per frame than reference (lift.decode_threads={threads}); decoding "
-          f"alone on {threads} threads takes {100 * (floor_mt_s / floor_frames) / (r['loop_s'] / r['frames']):.0f}% "
-          f"of robust's time per frame, so no lifting that decodes every depth frame can be more than "
-          f"x{cap:.1f} faster than reference here")
+    benchdoc.table(f"{args.det_set.upper()}: lifting speed (lifting loop; set-up excluded, shown apart)",
+                   ["mode", "frames/s", "dets/s", "ms/frame", "set-up s"], speed_rows,
+                   ["", ".1f", ".1f", ".2f", ".2f"],
+                   note=f"robust is x{ratio:.1f} faster per frame than reference (lift.decode_threads={threads}); "
+                        f"decoding alone on {threads} threads takes "
+                        f"{100 * (floor_mt_s / floor_frames) / (r['loop_s'] / r['frames']):.0f}% of robust's time per "
+                        f"frame, so no lifting that decodes every depth frame can be more than x{cap:.1f} faster than "
+                        "reference here")
+    benchdoc.finish()
 
 
 if __name__ == "__main__":

@@ -9,7 +9,8 @@ all): ATE (unaligned and SE(3)-aligned) and RPE of the refined PV poses against
     .venv/bin/python tools/bench_refine.py --seeds 1 --frames 300 --rgb --rows colmap all   # COLMAP rows
 
 The RGB set (``--rgb``) is cached separately (``.cache/bench_rgb/``) because the main set
-has no PV images. Writes a JSON of every figure with ``--json``.
+has no PV images. The JSON of the run (``--json``, tools/benchdoc.py) also holds every row's
+figures under ``data.rows``.
 
 Issue 18 (``--heldout``): the default ``egograph refine`` (mesh ICP + self-check + covariance) on
 recordings whose seeds were never used while tuning (``HELDOUT``), each also with its true poses
@@ -24,9 +25,10 @@ with the written covariance (expected 3), seconds per frame.
 from __future__ import annotations
 
 import argparse
-import json
 import time
 from pathlib import Path
+
+import benchdoc
 
 from egograph.core.resources import synth_config
 
@@ -135,29 +137,28 @@ def heldout_one(root: Path, label: str, extra: list[str]) -> dict:
     return row
 
 
-def heldout_table(rows: list[dict]) -> str:
+def heldout_table(rows: list[dict]) -> None:
+    """Print and record the held-out table and its summary line."""
     import numpy as np
 
-    f = lambda x: "-" if not np.isfinite(x) else f"{x:.2f}"  # noqa: E731
-    out = ["| recording | frames | reported ATE (cm) | refined ATE (cm) | ratio | solve before rule (cm) | aligned (cm) | "
-           "worse | self-check helped / truth | segments agreeing | refined share | NEES | ms/frame |",
-           "|---|---|---|---|---|---|---|---|---|---|---|---|---|"]
-    for r in rows:
-        out.append(f"| {r['recording']} | {r['frames']} | {r['ate_in'] * 100:.2f} | {r['ate_out'] * 100:.2f} | "
-                   f"{f(r['ratio'])} | {r['ate_solved'] * 100:.2f} | {r['aligned_in'] * 100:.2f} -> "
-                   f"{r['aligned_out'] * 100:.2f} | {'YES' if r['worse'] else 'no'} | {r['selfcheck_helped']} / "
-                   f"{r['truth_helped']} | {r['segments_agree']}/{r['segments']} | "
-                   f"{r['refined_share']:.0%} | {f(r['nees_mean'])} | {r['s_per_frame'] * 1000:.0f} |")
+    benchdoc.table("Default refinement on held-out recordings (each also with its true poses as the reported ones)",
+                   ["recording", "frames", "reported ATE (cm)", "refined ATE (cm)", "ratio", "solve before rule (cm)",
+                    "aligned (cm)", "worse", "self-check helped / truth", "segments agreeing", "refined share", "NEES",
+                    "ms/frame"],
+                   [[r["recording"], r["frames"], 100 * r["ate_in"], 100 * r["ate_out"], r["ratio"],
+                     100 * r["ate_solved"], [100 * r["aligned_in"], 100 * r["aligned_out"]], r["worse"],
+                     [r["selfcheck_helped"], r["truth_helped"]], [r["segments_agree"], r["segments"]],
+                     r["refined_share"], r["nees_mean"], 1000 * r["s_per_frame"]] for r in rows],
+                   ["", "d", ".2f", ".2f", ".2f", ".2f", "{0:.2f} -> {1:.2f}", "YES|no", "{0} / {1}", "{0}/{1}",
+                    ".0%", ".2f", ".0f"])
     noisy = [r for r in rows if not r["recording"].endswith("exact")]
     long_ = [r["ratio"] for r in noisy if r["frames"] >= 1000]
     nees_ = [r["nees_mean"] for r in noisy if np.isfinite(r["nees_mean"])]
-    out.append("")
-    out.append(f"ratios (>= 1000 frames): each <= 0.5: {sum(x <= 0.5 for x in long_)}/{len(long_)}, mean "
-               f"{np.mean(long_) if long_ else float('nan'):.2f}; worse than input: {sum(r['worse'] for r in rows)}/"
-               f"{len(rows)}; self-check agrees with truth: {sum(r['agree'] for r in rows)}/{len(rows)} recordings, "
-               f"{sum(r['segments_agree'] for r in rows)}/{sum(r['segments'] for r in rows)} segments; NEES mean "
-               f"over recordings {np.mean(nees_) if nees_ else float('nan'):.2f} (expected 3)")
-    return "\n".join(out)
+    benchdoc.text(f"ratios (>= 1000 frames): each <= 0.5: {sum(x <= 0.5 for x in long_)}/{len(long_)}, mean "
+                  f"{np.mean(long_) if long_ else float('nan'):.2f}; worse than input: {sum(r['worse'] for r in rows)}/"
+                  f"{len(rows)}; self-check agrees with truth: {sum(r['agree'] for r in rows)}/{len(rows)} recordings, "
+                  f"{sum(r['segments_agree'] for r in rows)}/{sum(r['segments'] for r in rows)} segments; NEES mean "
+                  f"over recordings {np.mean(nees_) if nees_ else float('nan'):.2f} (expected 3)")
 
 
 def run_heldout(sets: list[int], extra: list[str], cache: Path) -> list[dict]:
@@ -171,7 +172,8 @@ def run_heldout(sets: list[int], extra: list[str], cache: Path) -> list[dict]:
     return rows
 
 
-def table(results: list[dict]) -> str:
+def table(results: list[dict]) -> None:
+    """Print and record the per-source table (means over the recordings)."""
     import numpy as np
 
     rows = []
@@ -179,14 +181,16 @@ def table(results: list[dict]) -> str:
         sel = [r for r in results if r["row"] == name]
         m = lambda k: float(np.mean([r[k] for r in sel]))  # noqa: E731
         ch = [r.get("change", {}) for r in sel]
-        moved = (f"{np.mean([c.get('trans_rms_m', 0) for c in ch]) * 1000:.1f} / "
-                 f"{np.mean([c.get('rot_rms_deg', 0) for c in ch]):.3f}") if name != "reported" else "-"
-        secs = f"{m('seconds'):.0f}" if name != "reported" else "-"
-        rows.append(f"| {name} | {m('ate_rmse_m') * 100:.2f} | {m('ate_rmse_aligned_m') * 100:.2f} | "
-                    f"{m('rpe_trans_m') * 1000:.2f} | {m('rpe_rot_deg'):.3f} | {moved} | {secs} |")
-    head = ("| poses | ATE (cm) | ATE aligned (cm) | RPE (mm) | RPE (deg) | moved rms (mm / deg) | seconds |\n"
-            "|---|---|---|---|---|---|---|")
-    return head + "\n" + "\n".join(rows)
+        moved = ([np.mean([c.get('trans_rms_m', 0) for c in ch]) * 1000, np.mean([c.get('rot_rms_deg', 0) for c in ch])]
+                 if name != "reported" else "-")
+        secs = m('seconds') if name != "reported" else "-"
+        rows.append([name, m('ate_rmse_m') * 100, m('ate_rmse_aligned_m') * 100, m('rpe_trans_m') * 1000,
+                     m('rpe_rot_deg'), moved, secs])
+    recs = list(dict.fromkeys(Path(r["recording"]).name for r in results))
+    benchdoc.table("Pose refinement per source (mean over the recordings)",
+                   ["poses", "ATE (cm)", "ATE aligned (cm)", "RPE (mm)", "RPE (deg)", "moved rms (mm / deg)",
+                    "seconds"], rows, ["", ".2f", ".2f", ".2f", ".3f", "{0:.1f} / {1:.3f}", ".0f"],
+                   note=f"Recordings: {', '.join(recs)}.")
 
 
 def main() -> None:
@@ -200,18 +204,19 @@ def main() -> None:
     ap.add_argument("--synth-set", dest="synth_overrides", action="append", default=[], help="generator override")
     ap.add_argument("--set", dest="overrides", action="append", default=[], help="refine.* override (without 'refine.')")
     ap.add_argument("--rpe-delta", type=int, default=1)
-    ap.add_argument("--json", type=Path)
     ap.add_argument("--out-dir", type=Path, help="also write each row's refined poses to OUT_DIR/<seed>/<row>/")
     ap.add_argument("--heldout", action="store_true", help="issue 18: the default refinement on the HELDOUT seeds")
     ap.add_argument("--sets", type=int, nargs="+", default=[1000, 150, 300, 450, 600], choices=list(HELDOUT),
                     help="with --heldout: which recording lengths (frames)")
+    benchdoc.add_arguments(ap, __file__)
     a = ap.parse_args()
+    bench = benchdoc.start(__file__, a)
     if a.heldout:
         rows = run_heldout(a.sets, a.overrides, HELDOUT_CACHE)
         print()
-        print(heldout_table(rows))
-        if a.json:
-            a.json.write_text(json.dumps(rows, indent=1, default=str))
+        heldout_table(rows)
+        bench.data["rows"] = rows
+        benchdoc.finish()
         return
     syn = list(a.synth_overrides)
     from egograph.synth.benchset import benchmark_set, exact_poses_view, rgb_benchmark_set
@@ -226,9 +231,9 @@ def main() -> None:
     for root in roots:
         results += run(root, a.rows, a.overrides, a.rpe_delta, a.out_dir)
     print()
-    print(table(results))
-    if a.json:
-        a.json.write_text(json.dumps(results, indent=1, default=str))
+    table(results)
+    bench.data["rows"] = results
+    benchdoc.finish()
 
 
 if __name__ == "__main__":

@@ -40,6 +40,8 @@ import tempfile
 import time
 from pathlib import Path
 
+import benchdoc
+
 import egograph
 
 PACKAGE_ROOT = Path(egograph.__file__).resolve().parents[1]
@@ -130,7 +132,9 @@ def main() -> None:
                                                  "removed at the end)")
     ap.add_argument("--kill-after", type=float, metavar="F",
                     help="also kill a 2-worker run after F x its uninterrupted wall time and run it again")
+    benchdoc.add_arguments(ap, __file__)
     args = ap.parse_args()
+    benchdoc.start(__file__, args)
     work = args.workdir or Path(tempfile.mkdtemp(prefix="bench_run_"))
     try:
         ds = make_dataset(work, args.sequences, args.frames, args.config)
@@ -146,20 +150,22 @@ def main() -> None:
     finally:
         if args.workdir is None:
             shutil.rmtree(work, ignore_errors=True)
-    print(f"\n{args.sequences} sequences x {args.frames} frames, stages {args.stages}, trackers {args.trackers}; "
-          f"{os.cpu_count()} CPUs, load average {os.getloadavg()[0]:.1f} at the end")
-    print(f"{'workers':>7s} {'wall s':>8s} {'task s':>8s} {'task CPU s':>10s} {'busy workers':>12s}")
-    for workers, (wall, info) in rows.items():
-        print(f"{workers:7d} {wall:8.1f} {info['task_seconds']:8.1f} {info['task_cpu']:10.1f} "
-              f"{info['task_seconds'] / wall:12.2f}")
+    print()
+    benchdoc.table("egograph run: 1 and 2 local Dask workers",
+                   ["workers", "wall s", "task s", "task CPU s", "busy workers"],
+                   [[workers, wall, info["task_seconds"], info["task_cpu"], info["task_seconds"] / wall]
+                    for workers, (wall, info) in rows.items()], ["d", ".1f", ".1f", ".1f", ".2f"],
+                   note=f"{args.sequences} sequences x {args.frames} frames, stages {args.stages}, trackers "
+                        f"{args.trackers}; {os.cpu_count()} CPUs, load average {os.getloadavg()[0]:.1f} at the end.")
     (w1, i1), (w2, i2) = rows[1], rows[2]
-    print(f"speed-up 2 workers / 1: {w1 / w2:.2f}x; summaries identical: {i1['summary'] == i2['summary']}")
+    benchdoc.text(f"speed-up 2 workers / 1: {w1 / w2:.2f}x; summaries identical: {i1['summary'] == i2['summary']}")
     if killed is not None:
         k = killed
-        print(f"killed after {args.kill_after * w2:.1f} s ({'it had already finished' if k['finished_before_kill'] else 'SIGKILL'}): "
-              f"{k['steps_done_before_kill']}/{k['steps_in_all']} step outputs finished before the kill; "
-              f"re-run {k['resume_wall']:.1f} s; finished steps done again: {len(k['redone'])} {k['redone'][:3]}; "
-              f"summary equals the uninterrupted run's: {k['summary'] == i2['summary']}")
+        benchdoc.text(f"killed after {args.kill_after * w2:.1f} s ({'it had already finished' if k['finished_before_kill'] else 'SIGKILL'}): "
+                      f"{k['steps_done_before_kill']}/{k['steps_in_all']} step outputs finished before the kill; "
+                      f"re-run {k['resume_wall']:.1f} s; finished steps done again: {len(k['redone'])} {k['redone'][:3]}; "
+                      f"summary equals the uninterrupted run's: {k['summary'] == i2['summary']}")
+    benchdoc.finish()
 
 
 if __name__ == "__main__":

@@ -20,6 +20,8 @@ import tempfile
 import time
 from pathlib import Path
 
+import benchdoc
+
 from egograph.core.config import load_config
 from egograph.core.resources import synth_config
 from egograph.io.recording import Recording
@@ -39,7 +41,9 @@ def main() -> None:
     ap.add_argument("--keep", type=Path, help="keep the depth-only recording here")
     ap.add_argument("--renderers", nargs="+", default=["gl", "raycast"], choices=["gl", "raycast"],
                     help="PV renderers to time in the runs with RGB")
+    benchdoc.add_arguments(ap, __file__)
     args = ap.parse_args()
+    benchdoc.start(__file__, args)
 
     tmp = Path(tempfile.mkdtemp(prefix="bench_synth_"))
     rows = []
@@ -73,14 +77,19 @@ def main() -> None:
         rows += pv_rows
     finally:
         shutil.rmtree(tmp, ignore_errors=True)
-    print(f"\n{'stage':40s} {'frames':>6s} {'seconds':>8s} {'frames/s':>8s} {'CPU s':>7s} {'frames/CPU-s':>12s}")
-    for name, n, s, cpu in rows:
-        print(f"{name:40s} {n:6d} {s:8.1f} {n / max(s, 1e-9):8.1f} {cpu:7.1f} {n / max(cpu, 1e-9):12.1f}")
-    print(f"\ntrue intervals never a quarter visible (intervals_never_visible): {never}/{total}"
-          f" ({100 * never / max(total, 1):.0f} %)")
+    print()
+    benchdoc.table("Generator and reader speed",
+                   ["stage", "frames", "seconds", "frames/s", "CPU s", "frames/CPU-s"],
+                   [[name, n, s, n / max(s, 1e-9), cpu, n / max(cpu, 1e-9)] for name, n, s, cpu in rows],
+                   ["", "d", ".1f", ".1f", ".1f", ".1f"],
+                   note=f"Seed {args.seed}; CPU seconds are the process's (all threads); the PV colour rows are "
+                        "the difference from a depth-only run of the same frames.")
+    benchdoc.text(f"true intervals never a quarter visible (intervals_never_visible): {never}/{total}"
+                  f" ({100 * never / max(total, 1):.0f} %)")
     if args.frames:
         per = rows[0][2] / rows[0][1]
-        print(f"\nprojected 3000-frame depth-only recording: {per * 3000:.0f} s")
+        benchdoc.text(f"projected 3000-frame depth-only recording: {per * 3000:.0f} s")
+    benchdoc.finish()
 
 
 if __name__ == "__main__":

@@ -24,12 +24,13 @@ import time
 from concurrent.futures import ProcessPoolExecutor
 from pathlib import Path
 
+import benchdoc
 import numpy as np
 
 from egograph.core.config import load_config
 from egograph.core.resources import default_config, synth_config
 from egograph.eval.metrics import IntervalTally, gt_intervals, observable_intervals, ratio, target_checks
-from egograph.eval.report import EvalReport, comparison_table, plot_pr
+from egograph.eval.report import EvalReport, comparison_json, comparison_table, plot_pr
 from egograph.io.atomic import atomic_write_text
 from egograph.poses.refine import apply_poses
 from egograph.steps.evaluate import evaluate
@@ -66,26 +67,24 @@ def score(reports: dict, tallies: dict, det_set: str, name: str, rec, res: Path,
 
 def print_graph_targets(reports: dict, tallies: dict) -> None:
     """The interval table and the issue's ratio targets for the graph tracker."""
-    print("### Intervals (pooled): true intervals recovered (centre within 0.25 m, temporal IoU >= 0.5)\n")
-    print("| set | tracker | recovered / all | recovered / observable | median break error (s) | "
-          "NEES mean (expected 3) | intervals > 0.25 m off |")
-    print("|---|---|---|---|---|---|---|")
+    rows = []
     for det_set, reps in reports.items():
         for name, rep in reps.items():
             iv = rep.intervals
             t = tallies.get((det_set, name), IntervalTally())
             med = iv.median_break_error_s if iv else None
-            print(f"| {det_set} | {name} | {iv.n_recovered}/{iv.n_true} ({100 * iv.recovered_fraction:.0f} %) | "
-                  f"{t.obs_recovered}/{t.obs_true} ({100 * ratio(t.obs_recovered, t.obs_true):.0f} %) | "
-                  f"{'-' if med is None else f'{med:.2f}'} | "
-                  f"{f'{np.mean(t.nees):.2f} (n={len(t.nees)})' if t.nees else '-'} | "
-                  f"{t.far if t.nees else '-'} |")
-    print("\n### Graph tracker targets (ratios measured in this run)\n")
-    print("| set | row | against | metric | ratio | target | holds |")
-    print("|---|---|---|---|---|---|---|")
-    for c in target_checks(reports):
-        print(f"| {c.det_set} | {c.row} | {c.against} | {c.metric} | {c.ratio:.2f} | {c.op} {c.bound} | "
-              f"{'yes' if c.holds else 'NO'} |")
+            rows.append([det_set, name, [iv.n_recovered, iv.n_true, 100 * iv.recovered_fraction],
+                         [t.obs_recovered, t.obs_true, 100 * ratio(t.obs_recovered, t.obs_true)],
+                         "-" if med is None else med, [np.mean(t.nees), len(t.nees)] if t.nees else "-",
+                         t.far if t.nees else "-"])
+    benchdoc.table("Intervals (pooled): true intervals recovered (centre within 0.25 m, temporal IoU >= 0.5)",
+                   ["set", "tracker", "recovered / all", "recovered / observable", "median break error (s)",
+                    "NEES mean (expected 3)", "intervals > 0.25 m off"], rows,
+                   ["", "", "{0}/{1} ({2:.0f} %)", "{0}/{1} ({2:.0f} %)", ".2f", "{0:.2f} (n={1})", ""])
+    benchdoc.table("Graph tracker targets (ratios measured in this run)",
+                   ["set", "row", "against", "metric", "ratio", "target", "holds"],
+                   [[c.det_set, c.row, c.against, c.metric, c.ratio, f"{c.op} {c.bound}", c.holds]
+                    for c in target_checks(reports)], ["", "", "", "", ".2f", "", "yes|NO"])
 
 
 def run_recording(seed: int, root: Path, args) -> dict:
@@ -183,7 +182,9 @@ def main() -> None:
     ap.add_argument("--no-oracle", dest="trackers_extra", action="store_const", const=(), default=("oracle",),
                     help="skip the oracle row (true boxes lifted, true intervals)")
     ap.add_argument("--jobs", type=int, default=1, help="recordings run in this many worker processes at once")
+    benchdoc.add_arguments(ap, __file__)
     args = ap.parse_args()
+    benchdoc.start(__file__, args)
 
     roots = benchmark_set(args.seeds, args.frames, config=SYNTH_CONFIG, overrides=args.synth_overrides,
                           cache=args.cache)
@@ -200,32 +201,36 @@ def main() -> None:
     for part in parts:
         merge(part, reports, tallies, lift_stats, timing)
     args.out.mkdir(parents=True, exist_ok=True)
-    md_all = [f"Benchmark set: {len(roots)} synthetic recordings x {args.frames} frames (seeds "
-              f"{', '.join(map(str, args.seeds))}); counts pooled over the set.\n"]
+    benchdoc.text(f"Benchmark set: {len(roots)} synthetic recordings x {args.frames} frames (seeds "
+                  f"{', '.join(map(str, args.seeds))}); counts pooled over the set.\n")
     for det_set, reps in reports.items():
-        md, csv = comparison_table(reps, baseline="kf (reference lift)" if "kf (reference lift)" in reps else None)
-        md_all += [f"### {det_set.upper()}\n", md, ""]
+        baseline = "kf (reference lift)" if "kf (reference lift)" in reps else None
+        md, csv = comparison_table(reps, baseline=baseline)
+        cmp = comparison_json(reps, baseline=baseline)
+        benchdoc.table(det_set.upper(), ["tracker", *cmp["columns"]],
+                       [[name, *row.values()] for name, row in cmp["trackers"].items()],
+                       ["", *(".1f" if c[:2] in ("P@", "R@") and "/" not in c else ".2f" for c in cmp["columns"])])
         atomic_write_text(args.out / f"{det_set}.csv", csv)
         plot_pr(reps, args.out / f"{det_set}.png", title=f"{det_set.upper()} benchmark set")
         json.dump({k: v.to_json_dict() for k, v in reps.items()}, open(args.out / f"{det_set}.json", "w"), indent=1)
-    print("\n".join(md_all))
 
-    print("### Lifting: 3D error of lifted true detections against synth_gt, and speed\n")
-    print("| set | mode | median error (m) | mean error (m) | lifted true | frames/s | detections/s |")
-    print("|---|---|---|---|---|---|---|")
+    rows = []
     for (det_set, mode), st in sorted(lift_stats.items()):
         e = np.concatenate(st["err"]) if st.get("err") else np.zeros(0)
         fps = st["frames"] / st["seconds"] if st["seconds"] else float("nan")
         dps = st["dets"] / st["seconds"] if st["seconds"] else float("nan")
-        print(f"| {det_set} | {mode} | {np.median(e):.3f} | {e.mean():.3f} | {len(e)} | {fps:.1f} | {dps:.1f} |")
+        rows.append([det_set, mode, np.median(e), e.mean(), len(e), fps, dps])
+    benchdoc.table("Lifting: 3D error of lifted true detections against synth_gt, and speed",
+                   ["set", "mode", "median error (m)", "mean error (m)", "lifted true", "frames/s", "detections/s"],
+                   rows, ["", "", ".3f", ".3f", "d", ".1f", ".1f"])
     for det_set in ("svoe", "mvpe") if len(args.modes) == 2 else ():
         ref = np.median(np.concatenate(lift_stats[(det_set, "reference")]["err"]))
         rob = np.median(np.concatenate(lift_stats[(det_set, "robust")]["err"]))
-        print(f"\n{det_set}: reference / robust median lifting error = {ref / rob:.1f}x")
-
+        benchdoc.text(f"{det_set}: reference / robust median lifting error = {ref / rob:.1f}x")
+    print()
     print_graph_targets(reports, tallies)
-    print("\n### Calibration bands (memory + reference lifting, pooled over the set; ± bootstrap standard error "
-          "over recordings)\n")
+    benchdoc.text("\n### Calibration bands (memory + reference lifting, pooled over the set; ± bootstrap standard "
+                  "error over recordings)\n")
     ok_all = True
     for det_set, bands in BANDS.items():
         if "memory (reference lift)" not in reports[det_set]:
@@ -236,16 +241,17 @@ def main() -> None:
             ok = lo <= vals[k] <= hi
             ok_all &= ok
             third = (hi - lo) / 6
-            print(f"{det_set} {k}: {vals[k]:.2f} ± {se[k]:.2f} in [{lo}, {hi}] {'OK' if ok else 'OUT'} (centre "
-                  f"{(lo + hi) / 2:g}, paper {PAPER[det_set][k]:g}; standard error {'<=' if se[k] <= third else '>'} "
-                  f"a third of the half-width, {third:.2f}; per recording "
-                  f"{', '.join(f'{band_values(c)[k]:.2f}' for c in per)})")
-    print(f"\nall bands hold: {ok_all}")
+            benchdoc.text(f"{det_set} {k}: {vals[k]:.2f} ± {se[k]:.2f} in [{lo}, {hi}] {'OK' if ok else 'OUT'} (centre "
+                          f"{(lo + hi) / 2:g}, paper {PAPER[det_set][k]:g}; standard error "
+                          f"{'<=' if se[k] <= third else '>'} a third of the half-width, {third:.2f}; per recording "
+                          f"{', '.join(f'{band_values(c)[k]:.2f}' for c in per)})")
+    benchdoc.text(f"\nall bands hold: {ok_all}")
     never = [never_visible_intervals(root) for root in roots]
     n_never, n_all = sum(n for n, _ in never), sum(t for _, t in never)
-    print(f"\ntrue intervals never a quarter visible (intervals_never_visible): {n_never}/{n_all} "
-          f"({100 * n_never / max(n_all, 1):.1f} %; per recording {', '.join(f'{n}/{t}' for n, t in never)})")
-    print("\ntiming (s, whole set): " + ", ".join(f"{k} {v:.1f}" for k, v in timing.items()))
+    benchdoc.text(f"\ntrue intervals never a quarter visible (intervals_never_visible): {n_never}/{n_all} "
+                  f"({100 * n_never / max(n_all, 1):.1f} %; per recording {', '.join(f'{n}/{t}' for n, t in never)})")
+    benchdoc.text("\ntiming (s, whole set): " + ", ".join(f"{k} {v:.1f}" for k, v in timing.items()))
+    benchdoc.finish()
 
 
 if __name__ == "__main__":

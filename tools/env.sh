@@ -3,47 +3,79 @@
 # (sourced by demo.sh/test.sh).
 # Re-installs only when setup.cfg changes. Installs the system libraries (libusb-1.0-0 for Open3D,
 # libegl1 and libgl1-mesa-dri for the generator's OpenGL renderer) when missing.
+# Prints one line per set-up step it runs (to stderr); what apt-get and pip print goes to
+# .venv/setup.log (to a temporary file until .venv exists), whose path is printed when a step fails
+# (exit 1).
 set -euo pipefail
 REPO="$(cd "$(dirname "${BASH_SOURCE[0]}")/.." && pwd)"
+VENV="$REPO/.venv"
 PY="${PYTHON:-python3.11}"
 command -v "$PY" >/dev/null 2>&1 || PY=python3
 "$PY" -c 'import sys; sys.exit(0 if sys.version_info[:2] >= (3, 11) else 1)' || {
   echo "egograph needs Python 3.11 or newer (found: $("$PY" --version 2>&1))" >&2; exit 1; }
 
+if [ -d "$VENV" ]; then
+  SETUP_LOG="$VENV/setup.log"
+else
+  SETUP_LOG="$(mktemp "${TMPDIR:-/tmp}/egograph-setup.XXXXXX.log")"
+fi
+
+# step MESSAGE COMMAND...: say what is being set up, run it with its output in the log, and on
+# failure name the log and stop.
+step() {
+  local what="$1"; shift
+  echo "set-up: $what" >&2
+  echo "=== $(date -u +%FT%TZ) $what: $*" >> "$SETUP_LOG"
+  if ! "$@" >> "$SETUP_LOG" 2>&1; then
+    echo "set-up failed: $what. What it printed: $SETUP_LOG" >&2
+    exit 1
+  fi
+}
+
 # System libraries: libusb-1.0 (Open3D), EGL + Mesa's software OpenGL (the generator's PV renderer).
 NEED=()
 ldconfig -p 2>/dev/null | grep -q 'libusb-1.0.so.0' || NEED+=(libusb-1.0-0)
 ldconfig -p 2>/dev/null | grep -q 'libEGL.so.1' || NEED+=(libegl1)
-ls /usr/lib/*/dri/swrast_dri.so /usr/lib/dri/swrast_dri.so >/dev/null 2>&1 || NEED+=(libgl1-mesa-dri)
+SWRAST=""  # (ls of both paths fails whenever one is missing: test each)
+for f in /usr/lib/*/dri/swrast_dri.so /usr/lib/dri/swrast_dri.so; do [ -e "$f" ] && SWRAST="$f"; done
+[ -n "$SWRAST" ] || NEED+=(libgl1-mesa-dri)
 if [ "${#NEED[@]}" -gt 0 ]; then
   if [ "$(id -u)" = 0 ] && command -v apt-get >/dev/null 2>&1; then
-    echo "installing ${NEED[*]} (Open3D, the PV renderer)..." >&2
-    (apt-get update -qq && DEBIAN_FRONTEND=noninteractive apt-get install -y -qq "${NEED[@]}") >&2
+    step "apt-get install ${NEED[*]} (Open3D, the PV renderer)" \
+      bash -c 'apt-get update -qq && DEBIAN_FRONTEND=noninteractive apt-get install -y -qq "$@"' apt "${NEED[@]}"
   else
     echo "egograph needs the system packages ${NEED[*]}: run 'sudo apt-get install ${NEED[*]}'" >&2; exit 1
   fi
 fi
 
-VENV="$REPO/.venv"
-[ -x "$VENV/bin/python" ] || "$PY" -m venv "$VENV"
+if [ ! -x "$VENV/bin/python" ]; then
+  step "creating $VENV" "$PY" -m venv "$VENV"
+  if [ "$SETUP_LOG" != "$VENV/setup.log" ]; then  # from now on the log lives in .venv
+    cat "$SETUP_LOG" >> "$VENV/setup.log" && rm -f "$SETUP_LOG"
+    SETUP_LOG="$VENV/setup.log"
+  fi
+fi
 STAMP="$VENV/.egograph-installed"
 WANT="$(sha256sum "$REPO/setup.cfg" "$REPO/pyproject.toml" | sha256sum | cut -d' ' -f1)"
 if [ ! -f "$STAMP" ] || [ "$(cat "$STAMP")" != "$WANT" ] || ! "$VENV/bin/python" -c 'import egograph' 2>/dev/null; then
-  echo "installing egograph and its dependencies into $VENV ..." >&2
-  "$VENV/bin/python" -m pip install -q --upgrade pip >&2
+  step "upgrading pip" "$VENV/bin/python" -m pip install --upgrade pip
   # setup.cfg asks for open3d-cpu on Linux x86_64; open3d and open3d-cpu install the same files, so a
   # .venv made before the switch drops the full build first rather than mixing the two.
   if [ "$(uname -sm)" = "Linux x86_64" ] && "$VENV/bin/python" -m pip show -q open3d >/dev/null 2>&1; then
-    "$VENV/bin/python" -m pip uninstall -q -y open3d >&2
+    step "removing open3d (replaced by open3d-cpu)" "$VENV/bin/python" -m pip uninstall -y open3d
   fi
   # opencv-contrib-python-headless (required) and opencv-python-headless install the same cv2
   # files: a .venv made before the switch drops the plain build first rather than mixing the two.
   if "$VENV/bin/python" -m pip show -q opencv-python-headless >/dev/null 2>&1; then
-    "$VENV/bin/python" -m pip uninstall -q -y opencv-python-headless >&2
+    step "removing opencv-python-headless (replaced by the contrib build)" \
+      "$VENV/bin/python" -m pip uninstall -y opencv-python-headless
   fi
   # Editable (the checkout's files are the ones run), with the test runner and the optional
   # COLMAP (refine.colmap), KISS-ICP (refine.icp) and rerun (export --rrd) extras.
-  "$VENV/bin/python" -m pip install -q -e "$REPO[test,colmap,icp,viewer]" >&2
+  step "installing egograph and its dependencies into $VENV (pip; a few minutes the first time)" \
+    "$VENV/bin/python" -m pip install -e "$REPO[test,colmap,icp,viewer]"
   echo "$WANT" > "$STAMP"
+else
+  echo "set-up: $VENV is up to date" >&2
 fi
 export PATH="$VENV/bin:$PATH"

@@ -155,7 +155,8 @@ def summarize(rec: Recording, depth_samples: int = 5) -> dict:
     return out
 
 
-def print_summary(summary: dict, console=None) -> None:
+def print_summary(summary: dict, console=None, inputs: bool = True) -> None:
+    """The summary table and, with ``inputs``, the table of inputs found and not found."""
     from rich.console import Console
     from rich.table import Table
 
@@ -197,7 +198,8 @@ def print_summary(summary: dict, console=None) -> None:
         t.add_row("reported PV pose error", f"translation RMSE {pe['trans_rmse_m'] * 100:.1f} cm (max {pe['trans_max_m'] * 100:.1f}), "
                                             f"rotation RMSE {pe['rot_rmse_deg']:.2f}° (max {pe['rot_max_deg']:.2f})")
     console.print(t)
-    print_inputs(summary.get("inputs", []), console)
+    if inputs:
+        print_inputs(summary.get("inputs", []), console)
 
 
 def print_inputs(inputs: list[dict], console) -> None:
