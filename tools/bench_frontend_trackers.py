@@ -4,6 +4,8 @@ benchmark recordings, then the paper's pipeline (memory + reference lifting) aga
 graph tracker (robust lifting) on the same detections, beside the simulated front-end's sets.
 
     .venv/bin/python tools/bench_frontend_trackers.py --seeds 21 22 --frames 600 [--cache DIR] [--config frontend-mvpe]
+    .venv/bin/python tools/bench_frontend_trackers.py --seeds 27 28 --frames 1000 --sets mvpe --no-sot --no-guide \
+        --config frontend-mvpe --adapt-rounds 2      # the tracker teaches the front-end, per round
 
 Recordings come from egograph.synth.benchset.rgb_benchmark_set (PV RGB, cached); detection folders
 are cached beside them (``detect`` skips work already done). Per detection source
@@ -12,11 +14,18 @@ the share of detections that are true (on the instance: IoU >= 0.3 with its true
 box centre inside it, where at least a quarter visible), then P@0.25, P@1.5, R@0.25, L2 pooled over the recordings as the reference
 evaluator pools sequences, and the ratios graph / memory-reference (the issue asks at least 2.5x
 P@0.25 and R@0.25 in SVOE, 1.4x in MVPE, at most half the L2).
+
+``--adapt-rounds K`` (issue 30): round r detects again with ``adapt=`` the graph's results on round
+r - 1's detections (in memory, :func:`egograph.steps.adapt.teacher_from_result`), then runs the same
+pipelines on them; the tables gain a row per round, and a per-round table adds the held-back check,
+the fit and re-detect cost and the per-recording graph / paper L2 ratios (paper on the same
+detections, and on the round-0 detections: the published pipeline does not adapt).
 """
 
 from __future__ import annotations
 
 import argparse
+import json
 import os
 import time
 from pathlib import Path
@@ -26,6 +35,7 @@ from egograph.core.errors import InputError
 from egograph.core.resources import config_argument, default_config, synth_config
 from egograph.eval.protocol import THRESHOLDS, Counts
 from egograph.geometry.observations import Observations
+from egograph.steps.adapt import teacher_from_result
 from egograph.steps.detect import detect, guides_from_predictions
 from egograph.steps.evaluate import evaluate
 from egograph.steps.lift import lift
@@ -61,6 +71,12 @@ def main() -> None:
     ap.add_argument("--tag", default="", help="detection and observation folders under this sub-folder of the "
                                              "cache (front-end variants side by side)")
     ap.add_argument("--no-sot", action="store_true", help="leave out the SOT (CSRT) row")
+    ap.add_argument("--no-guide", action="store_true", help="leave out the 3D guidance rows")
+    ap.add_argument("--no-simulated", action="store_true", help="leave out the simulated front-end's rows")
+    ap.add_argument("--no-causal", action="store_true", help="leave out graph-causal")
+    ap.add_argument("--adapt-rounds", type=int, default=0, metavar="K",
+                    help="rounds of the tracker teaching the front-end (egograph detect --adapt), each taught by "
+                         "the graph's results on the round before")
     ap.add_argument("--config", type=config_argument, default=default_config(),
                     help="egograph configuration: a YAML file or a packaged name (e.g. frontend-mvpe; default: default)")
     ap.add_argument("--set", dest="overrides", action="append", default=[], metavar="KEY=VALUE",
@@ -75,6 +91,8 @@ def main() -> None:
     shares: dict = {}
     two_d: dict = {}  # (source, set) -> list of Track2dScores, one per recording
     t_detect, frames = 0.0, 0
+    per_rec: dict = {}     # (source, set, label) -> recording -> Counts
+    rounds: dict = {}      # (source, set) -> recording -> {"holdback", "fit_s", "detect_s", "frames", "heads"}
     for root in roots:
         rec = open_recording(root, base)
         for det_set in args.sets:
@@ -84,6 +102,8 @@ def main() -> None:
                 t_detect += time.perf_counter() - t
                 frames += len(rec)
             sources = [("simulated", det_set, rec.detections_dir(det_set)), ("detect", str(out), out)]
+            if args.no_simulated:
+                sources = sources[1:]
             if det_set == "svoe" and not args.no_sot:
                 sot_dir = args.cache / "sot" / root.name
                 sot(rec, base, sot_dir, method="csrt", progress=False)
@@ -99,8 +119,12 @@ def main() -> None:
                 for label, tracker, mode in PIPELINES:
                     if source.startswith("SOT") and tracker != "memory":
                         continue  # the paper's SOT row: its boxes lifted and kept in memory
+                    if args.no_causal and tracker == "graph-causal":
+                        continue
                     cfg = load_config(EgographConfig, args.config, [*args.overrides, f"lift.mode={mode}"])
                     tag = source.split()[0].lower() + ("_g" if "guidance" in source else "")
+                    if source.startswith("detect + adapt"):
+                        tag = "adapt_" + source.rsplit(" ", 1)[1]
                     try:
                         obs, _ = lift(rec, spec, cfg, args.cache / "obs" / args.tag / root.name / f"{tag}_{det_set}_{mode}.npz",
                                       progress=False)
@@ -112,8 +136,29 @@ def main() -> None:
                     else:
                         result = track_step(rec, tracker, obs, cfg)
                     key = (source, det_set, label)
-                    pooled[key] = pooled.get(key, Counts(THRESHOLDS)) + evaluate(rec, result).total
-                    if source == "detect" and tracker == "graph-causal" and radius > 0:
+                    one = evaluate(rec, result).total
+                    pooled[key] = pooled.get(key, Counts(THRESHOLDS)) + one
+                    per_rec.setdefault(key, {})[root.name] = one
+                    r = 0 if source == "detect" else int(source.rsplit("r", 1)[1]) if source.startswith("detect + adapt") else -1
+                    if tracker == "graph" and 0 <= r < args.adapt_rounds:
+                        # the graph's results on this round's detections teach the next round's head
+                        out_a = args.cache / "detect" / args.tag / root.name / f"{det_set}_adapt_r{r + 1}"
+                        t = time.perf_counter()
+                        rep = detect(rec, det_set, base, out_a, adapt=teacher_from_result(rec, result, folder),
+                                     embeddings=args.cache / "detect" / args.tag / root.name / f"{det_set}_proposals.npz",
+                                     progress=False)
+                        name = f"detect + adapt r{r + 1}"
+                        dt = time.perf_counter() - t
+                        ad = json.loads((out_a / "adapt.json").read_text())
+                        rounds.setdefault((name, det_set), {})[root.name] = {
+                            "holdback": ad["holdback_auc"], "fit_s": ad["seconds"]["crops"] + ad["seconds"]["background"]
+                            + ad["seconds"]["fit"], "detect_s": dt if rep is not None else None, "frames": len(rec),
+                            "stop": ad.get("stop"), "heads": sum(v["head"] for v in ad["instances"].values()),
+                            "instances": len(ad["instances"])}
+                        if rep is not None:
+                            print(f"{root.name} {det_set} round {r + 1} ({dt:.1f} s):\n{rep.summary()}", flush=True)
+                        sources.append((name, str(out_a), out_a))
+                    if source == "detect" and tracker == "graph-causal" and radius > 0 and not args.no_guide:
                         # 3D guidance as in the paper: each frame's choice among the above-threshold
                         # proposals follows the causal tracker's estimate of the frame before
                         out_g = args.cache / "detect" / args.tag / root.name / f"{det_set}_guided_{radius:g}px"
@@ -149,6 +194,35 @@ def main() -> None:
             ratio = [g.precision[0] / max(m.precision[0], 1e-9), g.recall[0] / max(m.recall[0], 1e-9),
                      g.l2_m / max(m.l2_m, 1e-9)]
             print(f"- {source} {det_set}: P@0.25 {ratio[0]:.2f}x, R@0.25 {ratio[1]:.2f}x, L2 {ratio[2]:.2f}x")
+            if source.startswith("detect + adapt"):
+                m0 = pooled[("detect", det_set, PIPELINES[0][0])]
+                print(f"  against the paper on the round-0 detections: P@0.25 {g.precision[0] / max(m0.precision[0], 1e-9):.2f}x, "
+                      f"R@0.25 {g.recall[0] / max(m0.recall[0], 1e-9):.2f}x, L2 {g.l2_m / max(m0.l2_m, 1e-9):.2f}x")
+    if args.adapt_rounds:
+        print("\nPer round: graph / paper L2 per recording (paper on the same detections), held-back check, cost:\n")
+        names = [r.name for r in roots]
+        print("| source | set | " + " | ".join(names) + " | held-back AUC | heads | fit s/rec | detect frames/s |")
+        print("|---|---|" + "---|" * len(names) + "---|---|---|---|")
+        for source in dict.fromkeys(k[0] for k in pooled if k[0] == "detect" or k[0].startswith("detect + adapt")):
+            for det_set in args.sets:
+                g = per_rec.get((source, det_set, PIPELINES[1][0]), {})
+                m = per_rec.get((source, det_set, PIPELINES[0][0]), {})
+                cells = [f"{g[n].l2_m / max(m[n].l2_m, 1e-9):.2f}x" if n in g and n in m and g[n].l2_n and m[n].l2_n
+                         else "n/a" for n in names]
+                info = rounds.get((source, det_set), {})
+                hb = [v["holdback"] for v in info.values() if v["holdback"] is not None]
+                heads = f"{sum(v['heads'] for v in info.values())} / {sum(v['instances'] for v in info.values())}" \
+                    if info else "-"
+                fit = f"{sum(v['fit_s'] for v in info.values()) / len(info):.1f}" if info else "-"
+                timed = [v for v in info.values() if v["detect_s"]]
+                fps = f"{sum(v['frames'] for v in timed) / max(sum(v['detect_s'] for v in timed), 1e-9):.1f}" \
+                    if timed else "cached"
+                hb_text = f"{sum(hb) / len(hb):.3f}" if hb else "-"
+                print(f"| {source} | {det_set} | " + " | ".join(cells) + f" | {hb_text} | ", end="")
+                print(f"{heads} | {fit} | {fps} |")
+                for n, v in info.items():
+                    if v.get("stop"):
+                        print(f"  {n}: the round's check says stop: {v['stop']}")
 
 
 if __name__ == "__main__":
