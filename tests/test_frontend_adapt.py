@@ -241,6 +241,24 @@ def test_detect_adapt_writes_a_self_describing_round_and_skips_done_work(rgb, ca
     capsys.readouterr()
     assert main(detect_args(rec, enc, base / "r1", *teach)) == 0     # the same round again: skipped
     assert "already holds" in capsys.readouterr().out
+    # a round re-scores stored proposal embeddings: the same detection files as embedding them again
+    from egograph.core.config import load_config
+    from egograph.core.resources import default_config
+    from egograph.steps.adapt import teacher_from_results
+    from egograph.steps.detect import detect
+    from egograph.steps.settings import EgographConfig
+
+    cfg = load_config(EgographConfig, default_config(), ["frontend.input_size=32", "adapt.min_support=2",
+                                                         "adapt.min_positives=2", "adapt.background_frames=10",
+                                                         "adapt.min_holdback=0"])
+    cfg.frontend.encoder = str(enc)
+    teacher = teacher_from_results(rec, base / "truth", base / "truth_dets")
+    for out in ("e1", "e2"):
+        rep = detect(rec, "mvpe", cfg, base / out, adapt=teacher, embeddings=base / "proposals.npz", progress=False)
+        assert rep.frames == len(rec)
+    assert (base / "proposals.npz").is_file() and rep.seconds["encoder"] == 0.0    # the second read them
+    for f in sorted((base / "r1").glob("*.txt")):
+        assert (base / "e1" / f.name).read_text() == (base / "e2" / f.name).read_text() == f.read_text()
     # the head's written scores: a head instance's rows carry the adapted score (>= adapt.threshold)
     rows = [line.split() for f in (base / "r1").glob("*.txt") for line in f.read_text().splitlines()]
     heads = {int(k) for k, v in doc["instances"].items() if v["head"]}
@@ -296,3 +314,15 @@ def test_detect_adapt_refuses_bad_teachers_naming_the_file(rgb, tmp_path, capsys
     err = capsys.readouterr().err.strip()
     assert len(err.splitlines()) == 1 and str(tmp_path / "foreign" / ADAPT_FILE) in err and "another recording" in err
     assert not (tmp_path / "never").exists()
+
+
+def test_iterating_stops_when_the_held_back_check_drops_or_the_stands_stop_changing():
+    from egograph.steps.adapt import stop_reason
+
+    cfg = AdaptConfig(holdback_drop=0.1, stop_change=0.05)
+    a = [{"instance": 0, "xyz": [0, 0, 0]}, {"instance": 1, "xyz": [1, 0, 0]}]
+    moved = [{"instance": 0, "xyz": [0, 2, 0]}, {"instance": 1, "xyz": [1, 0, 0]}]
+    assert stop_reason(None, a, 0.9, cfg) is None                                   # round 1: nothing to compare
+    assert stop_reason({"holdback_auc": 0.95, "stands": a}, moved, 0.9, cfg) is None   # still changing
+    assert "fell from 0.95 to 0.80" in stop_reason({"holdback_auc": 0.95, "stands": a}, moved, 0.8, cfg)
+    assert "stopped changing" in stop_reason({"holdback_auc": 0.95, "stands": a}, a, 0.95, cfg)

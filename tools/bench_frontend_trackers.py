@@ -16,8 +16,8 @@ evaluator pools sequences, and the ratios graph / memory-reference (the issue as
 P@0.25 and R@0.25 in SVOE, 1.4x in MVPE, at most half the L2).
 
 ``--adapt-rounds K`` (issue 30): round r detects again with ``adapt=`` the graph's results on round
-r - 1's detections (in memory, :func:`egograph.steps.adapt.teacher_from_result`), then runs the same
-pipelines on them; the tables gain a row per round, and a per-round table adds the held-back check,
+r - 1's detections (:func:`egograph.steps.adapt.teacher_from_result`), then runs the same pipelines on
+them; a round whose check says stop keeps the round before's detections, as ``egograph run`` does; the tables gain a row per round, and a per-round table adds the held-back check,
 the fit and re-detect cost and the per-recording graph / paper L2 ratios (paper on the same
 detections, and on the round-0 detections: the published pipeline does not adapt).
 """
@@ -45,7 +45,6 @@ from egograph.steps.sot import eval_2d, sot
 from egograph.steps.track import track as track_step
 from egograph.synth.benchset import rgb_benchmark_set
 from egograph.synth.truth import detections_against_truth, own_column
-from egograph.track.registry import graph_with_scene
 
 REPO = Path(__file__).resolve().parents[1]
 PIPELINES = (("memory + reference (paper)", "memory", "reference"),
@@ -131,10 +130,9 @@ def main() -> None:
                     except InputError as e:  # nothing lifted: no predictions (every true frame a miss)
                         print(f"{root.name} {source} {det_set} {mode}: {e}", flush=True)
                         obs = Observations.empty()
-                    if tracker.startswith("graph"):
-                        result = graph_with_scene(rec, obs, cfg, causal=tracker == "graph-causal")
-                    else:
-                        result = track_step(rec, tracker, obs, cfg)
+                    # results folders kept (read back when the same observations and configuration come again)
+                    kept = args.cache / "results" / args.tag / root.name / f"{tag}_{det_set}_{mode}_{tracker}"
+                    result = track_step(rec, tracker, obs, cfg, kept if len(obs) else None)
                     key = (source, det_set, label)
                     one = evaluate(rec, result).total
                     pooled[key] = pooled.get(key, Counts(THRESHOLDS)) + one
@@ -157,7 +155,10 @@ def main() -> None:
                             "instances": len(ad["instances"])}
                         if rep is not None:
                             print(f"{root.name} {det_set} round {r + 1} ({dt:.1f} s):\n{rep.summary()}", flush=True)
-                        sources.append((name, str(out_a), out_a))
+                        if ad.get("stop"):   # as egograph run: iterating stopped, the round before's detections carried
+                            sources.append((name, str(folder), folder))
+                        else:
+                            sources.append((name, str(out_a), out_a))
                     if source == "detect" and tracker == "graph-causal" and radius > 0 and not args.no_guide:
                         # 3D guidance as in the paper: each frame's choice among the above-threshold
                         # proposals follows the causal tracker's estimate of the frame before
@@ -199,7 +200,8 @@ def main() -> None:
                 print(f"  against the paper on the round-0 detections: P@0.25 {g.precision[0] / max(m0.precision[0], 1e-9):.2f}x, "
                       f"R@0.25 {g.recall[0] / max(m0.recall[0], 1e-9):.2f}x, L2 {g.l2_m / max(m0.l2_m, 1e-9):.2f}x")
     if args.adapt_rounds:
-        print("\nPer round: graph / paper L2 per recording (paper on the same detections), held-back check, cost:\n")
+        print("\nPer round: graph / paper L2 per recording (paper on the same detections; in brackets on the round-0 "
+              "detections), held-back check, cost:\n")
         names = [r.name for r in roots]
         print("| source | set | " + " | ".join(names) + " | held-back AUC | heads | fit s/rec | detect frames/s |")
         print("|---|---|" + "---|" * len(names) + "---|---|---|---|")
@@ -207,8 +209,12 @@ def main() -> None:
             for det_set in args.sets:
                 g = per_rec.get((source, det_set, PIPELINES[1][0]), {})
                 m = per_rec.get((source, det_set, PIPELINES[0][0]), {})
-                cells = [f"{g[n].l2_m / max(m[n].l2_m, 1e-9):.2f}x" if n in g and n in m and g[n].l2_n and m[n].l2_n
-                         else "n/a" for n in names]
+                m0 = per_rec.get(("detect", det_set, PIPELINES[0][0]), {})
+
+                def ratio(n, base):
+                    ok = n in g and n in base and g[n].l2_n and base[n].l2_n
+                    return f"{g[n].l2_m / max(base[n].l2_m, 1e-9):.2f}x" if ok else "n/a"
+                cells = [f"{ratio(n, m)} ({ratio(n, m0)})" for n in names]
                 info = rounds.get((source, det_set), {})
                 hb = [v["holdback"] for v in info.values() if v["holdback"] is not None]
                 heads = f"{sum(v['heads'] for v in info.values())} / {sum(v['instances'] for v in info.values())}" \

@@ -33,6 +33,7 @@ from egograph.steps.recording import labels as read_labels
 from egograph.steps.recording import require_annotations
 
 ENROLLMENTS = ("svoe", "mvpe")
+RUN_LEVEL_ADAPT_KNOBS = ("rounds", "stop_change", "holdback_drop")   # egograph run's, not one detect's
 STORED = np.zeros((1, 1, 3), np.uint8)   # stands in for a PV image whose proposals' embeddings are stored
 STAGES = ("background", "read", "proposals", "crops", "encoder", "matching", "write")
 
@@ -540,7 +541,7 @@ def detect(rec: Recording, enroll: str, cfg, out: str | Path, *, encoder: str | 
     depends = {"frontend": to_dict(fcfg), "io": to_dict(cfg.io)}
     if adapt_id:   # unadapted runs keep the fingerprint they had before adaptation existed
         inputs["adapt"] = adapt_id
-        depends["adapt"] = to_dict(cfg.adapt)
+        depends["adapt"] = {k: v for k, v in to_dict(cfg.adapt).items() if k not in RUN_LEVEL_ADAPT_KNOBS}
     record = outputs.run_record("detect", cfg, inputs, depends_on=depends)
     if outputs.up_to_date(Path(out), record, overwrite):
         return None
