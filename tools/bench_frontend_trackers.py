@@ -35,8 +35,9 @@ from egograph.core.errors import InputError
 from egograph.core.resources import config_argument, default_config, synth_config
 from egograph.eval.protocol import THRESHOLDS, Counts
 from egograph.geometry.observations import Observations
-from egograph.steps.adapt import teacher_from_result
-from egograph.steps.detect import detect, guides_from_predictions
+from egograph.frontend.adapt import Head
+from egograph.steps.adapt import Adaptation, teacher_from_result
+from egograph.steps.detect import carry_detections, detect, guides_from_predictions
 from egograph.steps.evaluate import evaluate
 from egograph.steps.lift import lift
 from egograph.steps.recording import open_recording
@@ -156,7 +157,9 @@ def main() -> None:
                         if rep is not None:
                             print(f"{root.name} {det_set} round {r + 1} ({dt:.1f} s):\n{rep.summary()}", flush=True)
                         if ad.get("stop"):   # as egograph run: iterating stopped, the round before's detections carried
-                            sources.append((name, str(folder), folder))
+                            carried = out_a.with_name(out_a.name + "_carried")
+                            carry_detections(rec, Adaptation(Head(), ad), base, carried)
+                            sources.append((name, str(carried), carried))
                         else:
                             sources.append((name, str(out_a), out_a))
                     if source == "detect" and tracker == "graph-causal" and radius > 0 and not args.no_guide:

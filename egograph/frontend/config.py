@@ -199,9 +199,10 @@ class AdaptConfig(Checked):
                                  " so a proposal passes (z >= 0) exactly when it scores at least this; 0.6 is the "
                                  "trackers' score_threshold, so every adapted detection is one the trackers read",
                             gt=0.0, lt=1.0)
-    rounds: int = knob(2, "egograph run --stages ...,adapt: rounds of adapt -> detect -> lift -> track after the "
-                          "first detect. Tuning recordings (MVPE, frontend-mvpe): seed 27 graph L2 1.50 m at round "
-                          "0, 1.05 after round 1, 1.02 after round 2", min=1, max=8)
+    rounds: int = knob(3, "egograph run --stages ...,adapt: rounds of adapt -> detect -> lift -> track after the "
+                          "first detect (fewer when the stop rule ends them). Tuning recordings (MVPE, frontend-mvpe), "
+                          "graph L2 at rounds 0-3: seed 27 1.50, 1.05, 1.02, 0.78 m; seed 28 0.84, 0.84, then the "
+                          "stands stopped changing (round 2 without the stop rule: 2.32 m)", min=1, max=8)
     stop_change: float = knob(0.05, "egograph run: stop iterating when the share of confident stands that moved or "
                                     "appeared since the last round is at most this (0-1)", min=0.0, max=1.0)
     seed: int = knob(0, "seed of the held-back split and the solver")
