@@ -195,6 +195,10 @@ class AdaptConfig(Checked):
     prior_weight: float = knob(20.0, "weight of the cosine prior in the adapted logit: "
                                      "z = head(x) + prior_weight * (cosine - frontend.similarity_threshold); an "
                                      "instance without a head has head(x) = 0, i.e. the plain rule", min=0.0)
+    gate: str = knob("prior", "how the head and the plain gates combine: 'prior' (a proposal passes at z >= 0, so a "
+                              "head may accept a proposal below frontend.similarity_threshold) or 'plain' (it must "
+                              "also pass the plain gates: the head re-ranks and vetoes, never adds)",
+                     choices=("prior", "plain"))
     threshold: float = knob(0.6, "the adapted score written in the detection files is sigmoid(z + logit(threshold)),"
                                  " so a proposal passes (z >= 0) exactly when it scores at least this; 0.6 is the "
                                  "trackers' score_threshold, so every adapted detection is one the trackers read",

@@ -323,6 +323,8 @@ class FrameDetector:
         if white is not None:
             margin = {k: np.minimum(margin[k], white[k] - cfg.whiten_threshold) for k in margin}
         z = adapted_logits(self.head, margin, emb, self.adapt_cfg, 0.0)
+        if self.adapt_cfg.gate == "plain":   # the head re-ranks and vetoes the plain rule's proposals only
+            z = {k: np.where(margin[k] >= 0, v, -np.inf) for k, v in z.items()}
         owner = exclusive_owner(z) if self.exclusive else None
         for inst, zi in z.items():
             g = (guides or {}).get(inst)
