@@ -103,3 +103,49 @@ def test_run_detects_lifts_its_detections_and_skips_done_work(dataset, tmp_path)
     assert all(second.results[k]["status"] == "ok" and second.results[k]["reused"] for k in ok), second.results
     assert second.summary == first.summary
     assert np.isfinite(first.summary["evaluation"]["kf"]["n_pred"])
+
+
+@pytest.mark.slow
+def test_run_iterates_rounds_of_adaptation_each_output_its_own(dataset, tmp_path):
+    """``--stages detect,lift,track,eval,adapt`` with ``adapt.rounds`` 2: per sequence round 1's
+    adapt reads round 0's graph results and detections, round 2's round 1's; every round writes its
+    own detections, observations, results and evaluation (named -r1, -r2), says which round and
+    which results taught it, and a second run computes nothing."""
+    cfg = config(tiny_encoder(tmp_path / "enc.onnx", side=32))
+    cfg.adapt.rounds = 2
+    cfg.adapt.min_support, cfg.adapt.min_confidence, cfg.adapt.min_positives, cfg.adapt.min_holdback = 1, 0.0, 1, 0.0
+    cfg.adapt.background_frames = 5
+    cfg.graph.min_observations = 1
+    runs = tmp_path / "runs"
+    stages = [*STAGES, "adapt"]
+    with pytest.raises(Exception, match="add graph to --trackers"):
+        plan_run(dataset, runs, cfg, stages=stages, trackers=["kf"], detections="mvpe")
+    client = open_client(2)
+    try:
+        plan = plan_run(dataset, runs, cfg, stages=stages, trackers=["graph"], detections="mvpe")
+        first = run_dataset(plan, cfg, client=client)
+        second = run_dataset(plan_run(dataset, runs, cfg, stages=stages, trackers=["graph"], detections="mvpe"), cfg,
+                             client=client)
+    finally:
+        close_client(client)
+    import json
+
+    tasks = {t.key: t for t in plan.tasks}
+    res = first.results
+    assert res["adapt/a@r1"]["status"] == "ok", res["adapt/a@r1"]
+    for r in (1, 2):
+        ad = json.loads((tasks[f"adapt/a@r{r}"].out / "adapt.json").read_text())
+        assert ad["round"] == r
+        teacher = tasks["track/a/graph" if r == 1 else f"track/a/graph@r{r - 1}"].out
+        assert ad["taught_by"]["results"] == str(teacher)
+        det = tasks[f"detect/a@r{r}"].out
+        assert det.name.startswith(f"detect-mvpe-r{r}-") and len(list(det.glob("*.txt"))) == FRAMES["a"]
+        assert json.loads((det / "egograph.json").read_text())["inputs"]["adapt"]["round"] == r
+        assert (plan.folder / "a" / f"detections-r{r}").resolve() == det
+        assert res[f"eval/a/graph@r{r}"]["status"] == "ok"
+    assert len({tasks[k].out for k in ("detect/a", "detect/a@r1", "detect/a@r2")}) == 3   # none overwritten
+    assert set(first.summary["rounds"]) == {"0", "1", "2"}
+    assert first.summary["rounds"]["1"]["adapt"]["a"]["heads"] == sorted(first.summary["rounds"]["1"]["adapt"]["a"]["heads"])
+    assert "holdback_auc" in first.summary["rounds"]["2"]["adapt"]["b"]
+    ok = [k for k, r in res.items() if r["status"] == "ok"]
+    assert all(second.results[k]["reused"] for k in ok), [k for k in ok if not second.results[k]["reused"]]

@@ -4,6 +4,8 @@ benchmark recordings, then the paper's pipeline (memory + reference lifting) aga
 graph tracker (robust lifting) on the same detections, beside the simulated front-end's sets.
 
     .venv/bin/python tools/bench_frontend_trackers.py --seeds 21 22 --frames 600 [--cache DIR] [--config frontend-mvpe]
+    .venv/bin/python tools/bench_frontend_trackers.py --seeds 27 28 --frames 1000 --sets mvpe --no-sot --no-guide \
+        --config frontend-mvpe --adapt-rounds 2      # the tracker teaches the front-end, per round
 
 Recordings come from egograph.synth.benchset.rgb_benchmark_set (PV RGB, cached); detection folders
 are cached beside them (``detect`` skips work already done). Per detection source
@@ -12,11 +14,18 @@ the share of detections that are true (on the instance: IoU >= 0.3 with its true
 box centre inside it, where at least a quarter visible), then P@0.25, P@1.5, R@0.25, L2 pooled over the recordings as the reference
 evaluator pools sequences, and the ratios graph / memory-reference (the issue asks at least 2.5x
 P@0.25 and R@0.25 in SVOE, 1.4x in MVPE, at most half the L2).
+
+``--adapt-rounds K`` (issue 30): round r detects again with ``adapt=`` the graph's results on round
+r - 1's detections (:func:`egograph.steps.adapt.teacher_from_result`), then runs the same pipelines on
+them; a round whose check says stop keeps the round before's detections, as ``egograph run`` does; the tables gain a row per round, and a per-round table adds the held-back check,
+the fit and re-detect cost and the per-recording graph / paper L2 ratios (paper on the same
+detections, and on the round-0 detections: the published pipeline does not adapt).
 """
 
 from __future__ import annotations
 
 import argparse
+import json
 import os
 import time
 from pathlib import Path
@@ -28,7 +37,9 @@ from egograph.core.errors import InputError
 from egograph.core.resources import config_argument, default_config, synth_config
 from egograph.eval.protocol import THRESHOLDS, Counts
 from egograph.geometry.observations import Observations
-from egograph.steps.detect import detect, guides_from_predictions
+from egograph.frontend.adapt import Head
+from egograph.steps.adapt import Adaptation, teacher_from_result
+from egograph.steps.detect import carry_detections, detect, guides_from_predictions
 from egograph.steps.evaluate import evaluate
 from egograph.steps.lift import lift
 from egograph.steps.recording import open_recording
@@ -37,7 +48,6 @@ from egograph.steps.sot import eval_2d, sot
 from egograph.steps.track import track as track_step
 from egograph.synth.benchset import rgb_benchmark_set
 from egograph.synth.truth import detections_against_truth, own_column
-from egograph.track.registry import graph_with_scene
 
 REPO = Path(__file__).resolve().parents[1]
 PIPELINES = (("memory + reference (paper)", "memory", "reference"),
@@ -63,6 +73,12 @@ def main() -> None:
     ap.add_argument("--tag", default="", help="detection and observation folders under this sub-folder of the "
                                              "cache (front-end variants side by side)")
     ap.add_argument("--no-sot", action="store_true", help="leave out the SOT (CSRT) row")
+    ap.add_argument("--no-guide", action="store_true", help="leave out the 3D guidance rows")
+    ap.add_argument("--no-simulated", action="store_true", help="leave out the simulated front-end's rows")
+    ap.add_argument("--no-causal", action="store_true", help="leave out graph-causal")
+    ap.add_argument("--adapt-rounds", type=int, default=0, metavar="K",
+                    help="rounds of the tracker teaching the front-end (egograph detect --adapt), each taught by "
+                         "the graph's results on the round before")
     ap.add_argument("--config", type=config_argument, default=default_config(),
                     help="egograph configuration: a YAML file or a packaged name (e.g. frontend-mvpe; default: default)")
     ap.add_argument("--set", dest="overrides", action="append", default=[], metavar="KEY=VALUE",
@@ -79,6 +95,8 @@ def main() -> None:
     shares: dict = {}
     two_d: dict = {}  # (source, set) -> list of Track2dScores, one per recording
     t_detect, frames = 0.0, 0
+    per_rec: dict = {}     # (source, set, label) -> recording -> Counts
+    rounds: dict = {}      # (source, set) -> recording -> {"holdback", "fit_s", "detect_s", "frames", "heads"}
     for root in roots:
         rec = open_recording(root, base)
         for det_set in args.sets:
@@ -88,6 +106,8 @@ def main() -> None:
                 t_detect += time.perf_counter() - t
                 frames += len(rec)
             sources = [("simulated", det_set, rec.detections_dir(det_set)), ("detect", str(out), out)]
+            if args.no_simulated:
+                sources = sources[1:]
             if det_set == "svoe" and not args.no_sot:
                 sot_dir = args.cache / "sot" / root.name
                 sot(rec, base, sot_dir, method="csrt", progress=False)
@@ -103,21 +123,50 @@ def main() -> None:
                 for label, tracker, mode in PIPELINES:
                     if source.startswith("SOT") and tracker != "memory":
                         continue  # the paper's SOT row: its boxes lifted and kept in memory
+                    if args.no_causal and tracker == "graph-causal":
+                        continue
                     cfg = load_config(EgographConfig, args.config, [*args.overrides, f"lift.mode={mode}"])
                     tag = source.split()[0].lower() + ("_g" if "guidance" in source else "")
+                    if source.startswith("detect + adapt"):
+                        tag = "adapt_" + source.rsplit(" ", 1)[1]
                     try:
                         obs, _ = lift(rec, spec, cfg, args.cache / "obs" / args.tag / root.name / f"{tag}_{det_set}_{mode}.npz",
                                       progress=False)
                     except InputError as e:  # nothing lifted: no predictions (every true frame a miss)
                         print(f"{root.name} {source} {det_set} {mode}: {e}", flush=True)
                         obs = Observations.empty()
-                    if tracker.startswith("graph"):
-                        result = graph_with_scene(rec, obs, cfg, causal=tracker == "graph-causal")
-                    else:
-                        result = track_step(rec, tracker, obs, cfg)
+                    # results folders kept (read back when the same observations and configuration come again)
+                    kept = args.cache / "results" / args.tag / root.name / f"{tag}_{det_set}_{mode}_{tracker}"
+                    result = track_step(rec, tracker, obs, cfg, kept if len(obs) else None)
                     key = (source, det_set, label)
-                    pooled[key] = pooled.get(key, Counts(THRESHOLDS)) + evaluate(rec, result).total
-                    if source == "detect" and tracker == "graph-causal" and radius > 0:
+                    one = evaluate(rec, result).total
+                    pooled[key] = pooled.get(key, Counts(THRESHOLDS)) + one
+                    per_rec.setdefault(key, {})[root.name] = one
+                    r = 0 if source == "detect" else int(source.rsplit("r", 1)[1]) if source.startswith("detect + adapt") else -1
+                    if tracker == "graph" and 0 <= r < args.adapt_rounds:
+                        # the graph's results on this round's detections teach the next round's head
+                        out_a = args.cache / "detect" / args.tag / root.name / f"{det_set}_adapt_r{r + 1}"
+                        t = time.perf_counter()
+                        rep = detect(rec, det_set, base, out_a, adapt=teacher_from_result(rec, result, folder),
+                                     embeddings=args.cache / "detect" / args.tag / root.name / f"{det_set}_proposals.npz",
+                                     progress=False)
+                        name = f"detect + adapt r{r + 1}"
+                        dt = time.perf_counter() - t
+                        ad = json.loads((out_a / "adapt.json").read_text())
+                        rounds.setdefault((name, det_set), {})[root.name] = {
+                            "holdback": ad["holdback_auc"], "fit_s": ad["seconds"]["crops"] + ad["seconds"]["background"]
+                            + ad["seconds"]["fit"], "detect_s": dt if rep is not None else None, "frames": len(rec),
+                            "stop": ad.get("stop"), "heads": sum(v["head"] for v in ad["instances"].values()),
+                            "instances": len(ad["instances"])}
+                        if rep is not None:
+                            print(f"{root.name} {det_set} round {r + 1} ({dt:.1f} s):\n{rep.summary()}", flush=True)
+                        if ad.get("stop"):   # as egograph run: iterating stopped, the round before's detections carried
+                            carried = out_a.with_name(out_a.name + "_carried")
+                            carry_detections(rec, Adaptation(Head(), ad), base, carried)
+                            sources.append((name, str(carried), carried))
+                        else:
+                            sources.append((name, str(out_a), out_a))
+                    if source == "detect" and tracker == "graph-causal" and radius > 0 and not args.no_guide:
                         # 3D guidance as in the paper: each frame's choice among the above-threshold
                         # proposals follows the causal tracker's estimate of the frame before
                         out_g = args.cache / "detect" / args.tag / root.name / f"{det_set}_guided_{radius:g}px"
@@ -136,12 +185,12 @@ def main() -> None:
                    rows, ["", "", "{0} / {1} ({2:.0f} %)", "", ".1f", ".1f", ".1f", ".1f", ".2f"],
                    note=f"RGB recordings: seeds {', '.join(map(str, args.seeds))} x {args.frames} frames; {speed}.")
     rows = []
-    for (source, det_set), per_rec in two_d.items():
-        n = sum(r.n for r in per_rec)
-        mean = {a: sum(getattr(r, a) * r.n for r in per_rec if r.n) / max(n, 1) for a in ("auc", "precision_20px",
+    for (source, det_set), evals in two_d.items():
+        n = sum(r.n for r in evals)
+        mean = {a: sum(getattr(r, a) * r.n for r in evals if r.n) / max(n, 1) for a in ("auc", "precision_20px",
                                                                                           "norm_precision")}
         rows.append([source, det_set, mean["auc"], mean["precision_20px"], mean["norm_precision"],
-                     [sum(r.n_detected for r in per_rec), n]])
+                     [sum(r.n_detected for r in evals), n]])
     benchdoc.table("2D table against 2d_bbox_annot/", ["source", "set", "AUC", "P@20px", "P_norm", "pairs with a box"],
                    rows, ["", "", ".1f", ".1f", ".1f", "{0} / {1}"],
                    note="Pooled over the annotated pairs of every recording; a pair without a box counts as a miss.")
@@ -153,9 +202,42 @@ def main() -> None:
             g, m = pooled[(source, det_set, PIPELINES[1][0])], pooled[(source, det_set, PIPELINES[0][0])]
             rows.append([source, det_set, g.precision[0] / max(m.precision[0], 1e-9),
                          g.recall[0] / max(m.recall[0], 1e-9), g.l2_m / max(m.l2_m, 1e-9)])
+            if source.startswith("detect + adapt"):
+                m0 = pooled[("detect", det_set, PIPELINES[0][0])]
+                rows.append([f"{source} vs paper on round-0 detections", det_set,
+                             g.precision[0] / max(m0.precision[0], 1e-9), g.recall[0] / max(m0.recall[0], 1e-9),
+                             g.l2_m / max(m0.l2_m, 1e-9)])
     benchdoc.table("Ratios graph + robust / memory + reference", ["source", "set", "P@0.25", "R@0.25", "L2"], rows,
                    ["", "", "{:.2f}x", "{:.2f}x", "{:.2f}x"],
                    note="Target: SVOE >= 2.5x P and R at 0.25 m, MVPE >= 1.4x, L2 <= 0.5x.")
+    if args.adapt_rounds:
+        names = [r.name for r in roots]
+        rows = []
+        for source in dict.fromkeys(k[0] for k in pooled if k[0] == "detect" or k[0].startswith("detect + adapt")):
+            for det_set in args.sets:
+                g = per_rec.get((source, det_set, PIPELINES[1][0]), {})
+                m = per_rec.get((source, det_set, PIPELINES[0][0]), {})
+                m0 = per_rec.get(("detect", det_set, PIPELINES[0][0]), {})
+
+                def ratio(n, base):
+                    ok = n in g and n in base and g[n].l2_n and base[n].l2_n
+                    return f"{g[n].l2_m / max(base[n].l2_m, 1e-9):.2f}x" if ok else "n/a"
+                cells = [f"{ratio(n, m)} ({ratio(n, m0)})" for n in names]
+                info = rounds.get((source, det_set), {})
+                hb = [v["holdback"] for v in info.values() if v["holdback"] is not None]
+                heads = f"{sum(v['heads'] for v in info.values())} / {sum(v['instances'] for v in info.values())}" \
+                    if info else "-"
+                fit = f"{sum(v['fit_s'] for v in info.values()) / len(info):.1f}" if info else "-"
+                timed = [v for v in info.values() if v["detect_s"]]
+                fps = f"{sum(v['frames'] for v in timed) / max(sum(v['detect_s'] for v in timed), 1e-9):.1f}" \
+                    if timed else "cached"
+                rows.append([source, det_set, *cells, f"{sum(hb) / len(hb):.3f}" if hb else "-", heads, fit, fps])
+                for n, v in info.items():
+                    if v.get("stop"):
+                        benchdoc.text(f"{source} {det_set} {n}: the round's check says stop: {v['stop']}")
+        benchdoc.table("Per round: graph / paper L2 per recording (paper on the same detections; in brackets on the "
+                       "round-0 detections), held-back check, cost",
+                       ["source", "set", *names, "held-back AUC", "heads", "fit s/rec", "detect frames/s"], rows)
     benchdoc.finish()
 
 

@@ -5,6 +5,7 @@
     egograph info REC
     egograph lift REC --detections svoe --out OBS.npz
     egograph detect REC --enroll svoe|mvpe --out DIR [--encoder FILE.onnx] [--proposals NAME] [--guide RESULTS]
+                    [--adapt RESULTS]
     egograph track REC --tracker graph|graph-causal|memory|kf --detections svoe --out RESULTS
     egograph regt REC --out DIR
     egograph smooth REC RESULTS --out RESULTS_SMOOTHED
@@ -187,8 +188,15 @@ def cmd_detect(args) -> int:
         if cfg.frontend.guidance_radius_px <= 0:
             raise ConfigError("--guide needs frontend.guidance_radius_px > 0 (0 turns 3D guidance off)")
         guide = guides_from_results(rec, args.guide)
+    adapt = args.adapt
+    if args.adapt_detections is not None:
+        from egograph.steps.adapt import teacher_from_results
+
+        if args.adapt is None:
+            raise ConfigError("--adapt-detections needs --adapt RESULTS")
+        adapt = teacher_from_results(rec, args.adapt, args.adapt_detections)
     report = detect(rec, args.enroll, cfg, args.out, encoder=args.encoder, proposals=args.proposals,
-                    guide_world=guide, overwrite=args.overwrite, progress=not args.quiet)
+                    guide_world=guide, adapt=adapt, overwrite=args.overwrite, progress=not args.quiet)
     con = _console()
     if report is None:
         con.print(f"{args.out} already holds these detections (same recording, enrollment, encoder and frontend "
@@ -510,6 +518,13 @@ def build_parser() -> argparse.ArgumentParser:
                    help="3D guidance: a results folder of egograph track; in each frame, per instance, the "
                         "above-threshold proposal nearest the projection of its previous frame's prediction "
                         "(within frontend.guidance_radius_px) instead of the most similar one")
+    s.add_argument("--adapt", type=Path, metavar="RESULTS",
+                   help="the tracker teaches the front-end: a results folder of egograph track --tracker graph "
+                        "(or an adapt folder of egograph run); per instance a head learned from its confident "
+                        "stands scores the proposals, the cosine as a prior (knobs: section adapt)")
+    s.add_argument("--adapt-detections", type=Path, metavar="DIR",
+                   help="the detections the --adapt results were tracked from (default: the folder their run "
+                        "record names)")
     _add_quiet(s)
     _add_overwrite(s)
     _add_config_args(s, DEFAULT_CONFIG)

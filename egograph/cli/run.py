@@ -32,7 +32,10 @@ def add_parser(sub, add_config_args, default_config: Path) -> None:
                    help=f"comma-separated, from {','.join(STAGES)} (default {','.join(DEFAULT_STAGES)}); a stage "
                         "brings the ones it needs (eval: track, lift); refine's poses feed the later stages; detect "
                         "runs `egograph detect` (enrollment --detections, front-end config frontend.*) on each "
-                        "sequence's PV frames and lift reads its detections instead of the recording's"
+                        "sequence's PV frames and lift reads its detections instead of the recording's; adapt "
+                        "(with detect and the graph tracker) iterates adapt.rounds rounds of detect -> lift -> "
+                        "track -> eval, each round's front-end taught by the graph's results of the round before "
+                        "(docs/frontend-adapt.md)"
                         + "".join(f"; {k}: {v}" for k, v in PLANNED_STAGES.items()))
     s.add_argument("--trackers", type=_csv, default=list(TRACKERS), metavar="LIST",
                    help=f"comma-separated, from {','.join(TRACKERS)} (default all)")

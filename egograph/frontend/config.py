@@ -149,3 +149,64 @@ class FrontendConfig(Checked):
         """The proposal source of an enrollment (``svoe`` | ``mvpe``): ``mvpe_proposals`` for MVPE
         when set, else ``proposals``."""
         return self.mvpe_proposals if enroll == "mvpe" and self.mvpe_proposals else self.proposals
+
+
+@dataclass
+class AdaptConfig(Checked):
+    """The tracker teaches the front-end (``egograph detect --adapt``, ``egograph run --stages
+    ...,adapt``): a per-recording, per-instance appearance head learned from the graph's own
+    confident stands (:mod:`egograph.frontend.adapt`)."""
+
+    min_support: int = knob(8, "a stand teaches the head when it holds at least this many inlier detections "
+                               "(the interval's n_observations)", min=1)
+    min_confidence: float = knob(0.5, "a stand teaches the head only with at least this confidence (the interval's "
+                                      "confidence: inlier share x (1 - exp(-inliers / graph.confidence_scale)), 0-1)",
+                                 min=0.0, max=1.0)
+    box_margin: float = knob(0.25, "a detection is an inlier of its instance's stand when the PV projection of "
+                                   "the stand's centre falls inside its box enlarged by this share of its side on "
+                                   "each side, in a frame between the stand's first and last supporting detection "
+                                   "(intervals.json keeps the stands, not which detection supported which)",
+                             min=0.0, max=2.0)
+    contest_radius_m: float = knob(0.3, "confident stands of two instances within this distance and overlapping in "
+                                        "time show one object: it goes to the instance whose enrollment its crops "
+                                        "match best (mean cosine), and its crops are negatives of the other; "
+                                        "metres, 0 = off", min=0.0)
+    max_per_stand: int = knob(40, "at most this many crops per stand (evenly spread over its detections)", min=1)
+    max_outliers: int = knob(40, "at most this many hard negatives per instance from its rejected detections (its "
+                                 "detections away from its confident stand while that stand holds)", min=0)
+    background_frames: int = knob(40, "PV frames, evenly spread, whose proposals join every head's negatives "
+                                      "(background clutter; a crop of an enrolled object among them is rare)", min=0)
+    min_positives: int = knob(5, "an instance gets a head only with at least this many harvested crops from its "
+                                 "stands; otherwise it keeps the plain cosine", min=1)
+    holdback: float = knob(0.3, "share of each instance's enrollment views held back from the head's training: "
+                                "the confirmation check (an instance with one view holds none back)",
+                           min=0.0, lt=1.0)
+    min_holdback: float = knob(0.75, "confirmation check: an instance's head is kept only when a head fitted on its "
+                                     "stands' crops alone ranks its held-back enrollment views above at least this "
+                                     "share of the harvested negatives on average (rank AUC, 0-1); otherwise its "
+                                     "stands show another object and it keeps the plain cosine. Tuning recording 27: "
+                                     "0.97-0.99 for the instances with a head; one stand alone on the instance's "
+                                     "object 0.86-0.99, and 0.96 on another instance's object (a look-alike: this "
+                                     "check does not catch those, contest_radius_m does)", min=0.0, max=1.0)
+    holdback_drop: float = knob(0.1, "egograph run: stop iterating when the held-back rank AUC (mean over the heads) "
+                                     "falls by more than this from the round before (0-1)", min=0.0, max=1.0)
+    regularization: float = knob(1.0, "inverse L2 strength C of the logistic regression (scikit-learn's C; unit "
+                                      "embeddings)", gt=0.0)
+    prior_weight: float = knob(20.0, "weight of the cosine prior in the adapted logit: "
+                                     "z = head(x) + prior_weight * (cosine - frontend.similarity_threshold); an "
+                                     "instance without a head has head(x) = 0, i.e. the plain rule", min=0.0)
+    gate: str = knob("prior", "how the head and the plain gates combine: 'prior' (a proposal passes at z >= 0, so a "
+                              "head may accept a proposal below frontend.similarity_threshold) or 'plain' (it must "
+                              "also pass the plain gates: the head re-ranks and vetoes, never adds)",
+                     choices=("prior", "plain"))
+    threshold: float = knob(0.6, "the adapted score written in the detection files is sigmoid(z + logit(threshold)),"
+                                 " so a proposal passes (z >= 0) exactly when it scores at least this; 0.6 is the "
+                                 "trackers' score_threshold, so every adapted detection is one the trackers read",
+                            gt=0.0, lt=1.0)
+    rounds: int = knob(3, "egograph run --stages ...,adapt: rounds of adapt -> detect -> lift -> track after the "
+                          "first detect (fewer when the stop rule ends them). Tuning recordings (MVPE, frontend-mvpe), "
+                          "graph L2 at rounds 0-3: seed 27 1.50, 1.05, 1.02, 0.78 m; seed 28 0.84, 0.84, then the "
+                          "stands stopped changing (round 2 without the stop rule: 2.32 m)", min=1, max=8)
+    stop_change: float = knob(0.05, "egograph run: stop iterating when the share of confident stands that moved or "
+                                    "appeared since the last round is at most this (0-1)", min=0.0, max=1.0)
+    seed: int = knob(0, "seed of the held-back split and the solver")

@@ -44,9 +44,10 @@ from egograph.io.textio import int_stem, iter_rows, listed_files, make_record, p
 
 T = TypeVar("T")
 
-METADATA_FILES = frozenset({"intervals.json", "config.yaml", "egograph.json"})
-"""Files a results folder may hold beside its per-frame ``<ts>.txt`` (the tracker's intervals, the
-resolved configuration and the run record, see :mod:`egograph.steps.outputs`); readers skip them."""
+METADATA_FILES = frozenset({"intervals.json", "config.yaml", "egograph.json", "adapt.json"})
+"""Files a results or detections folder may hold beside its per-frame ``<ts>.txt`` (the tracker's
+intervals, the resolved configuration, the run record, see :mod:`egograph.steps.outputs`, and an
+adapted detection's head record, :mod:`egograph.steps.adapt`); readers skip them."""
 
 
 # --------------------------------------------------------------------------- per-frame folders

@@ -33,6 +33,8 @@ from egograph.steps.recording import labels as read_labels
 from egograph.steps.recording import require_annotations
 
 ENROLLMENTS = ("svoe", "mvpe")
+RUN_LEVEL_ADAPT_KNOBS = ("rounds", "stop_change", "holdback_drop")   # egograph run's, not one detect's
+STORED = np.zeros((1, 1, 3), np.uint8)   # stands in for a PV image whose proposals' embeddings are stored
 STAGES = ("background", "read", "proposals", "crops", "encoder", "matching", "write")
 
 
@@ -49,6 +51,7 @@ class DetectReport:
     proposals: int = 0
     seconds: dict[str, float] = field(default_factory=lambda: dict.fromkeys(STAGES, 0.0))
     names: list[str] = field(default_factory=list)
+    adaptation: object = None    # the head used (egograph.steps.adapt.Adaptation), if adapted
 
     def name(self, inst: int) -> str:
         return self.names[inst] if inst < len(self.names) else str(inst)
@@ -65,6 +68,8 @@ class DetectReport:
                              f"({100 * n / max(self.frames, 1):.0f} %), {self.enrolled[inst]} enrollment views")
             else:
                 lines.append(f"  {inst} {self.name(inst)}: not enrolled ({': '.join(self.not_enrolled[inst])})")
+        if self.adaptation is not None:
+            lines.append(self.adaptation.summary())
         if self.skipped_frames:
             lines.append(f"  {len(self.skipped_frames)} PV frames skipped (no image or unreadable), e.g. "
                          + ", ".join(self.skipped_frames[:3]))
@@ -234,6 +239,10 @@ class FrameDetector:
             rec, cfg, encoder, enrollment, sources, report)
         self.exclusive = exclusive   # a proposal goes to the instance it is most similar to only
         self.whitening = None
+        self.head = None             # adapted scoring (egograph.frontend.adapt), after use_head
+        self.adapt_cfg = None
+        self.stored: dict[int, tuple[list, np.ndarray]] | None = None   # every frame's, read from a file
+        self.seen: dict[int, tuple[list, np.ndarray]] = {}              # what this pass embedded (to save)
         self.embedded: dict[int, tuple[list, np.ndarray]] = {}   # frame -> its proposals and embeddings, if done
 
     def use_whitening(self, whitening) -> None:
@@ -245,8 +254,22 @@ class FrameDetector:
             self.white = Enrollment({k: whitening(v) for k, v in self.enrollment.views.items()},
                                     self.enrollment.pooling)
 
+    def use_head(self, head, adapt_cfg) -> None:
+        """Score proposals with the adapted logit (:func:`egograph.frontend.adapt.adapted_logits`):
+        per instance the head's logit plus the cosine prior; a proposal passes at logit >= 0 and the
+        score written is :func:`~egograph.frontend.adapt.adapted_score` (instances without a head keep
+        the plain rule and write the plain cosine)."""
+        self.head, self.adapt_cfg = head, adapt_cfg
+
     def embed_proposals(self, i: int, rgb: np.ndarray) -> tuple[list, np.ndarray]:
         """Frame ``i``'s proposals that give a crop, and their embeddings (P, D, unit rows)."""
+        if self.stored is not None and i in self.stored:
+            return self.stored[i]
+        kept, emb = self._embed_proposals(i, rgb)
+        self.seen[i] = (kept, emb)
+        return kept, emb
+
+    def _embed_proposals(self, i: int, rgb: np.ndarray) -> tuple[list, np.ndarray]:
         from egograph.frontend.matching import crop
         from egograph.frontend.proposals import keep_plausible, nms
 
@@ -270,10 +293,49 @@ class FrameDetector:
         sec["encoder"] += time.perf_counter() - t2
         return kept, emb
 
-    def __call__(self, i: int, rgb: np.ndarray, guides: dict | None = None) -> list[tuple[int, tuple, float, float]]:
+    def _plain_rows(self, kept, boxes, plain, white, guides) -> list:
         from egograph.frontend.matching import pick
 
-        cfg = self.cfg
+        cfg, rows = self.cfg, []
+        score = plain if white is None else white
+        owner = exclusive_owner(score) if self.exclusive else None
+        for inst, sims in plain.items():
+            g = (guides or {}).get(inst)
+            s = sims if owner is None else np.where(owner == inst, sims, -np.inf)
+            if white is None:
+                k = pick(s, boxes, cfg.similarity_threshold, g, cfg.guidance_radius_px)
+            else:   # both gates; among the proposals passing them the best whitened score
+                w = np.where(s >= cfg.similarity_threshold, white[inst], -np.inf)
+                k = pick(w, boxes, cfg.whiten_threshold, g, cfg.guidance_radius_px)
+            if k is not None:
+                rows.append((inst, kept[k].box, kept[k].conf, float(sims[k])))
+        return rows
+
+    def _adapted_rows(self, kept, boxes, emb, plain, white, guides) -> list:
+        """Adapted scoring: the prior is the margin of the plain gates (the least of cosine -
+        similarity_threshold and, under whitening, whitened cosine - whiten_threshold), so an
+        instance without a head passes exactly the proposals the plain rule passes."""
+        from egograph.frontend.adapt import adapted_logits, adapted_score
+        from egograph.frontend.matching import pick
+
+        cfg, rows = self.cfg, []
+        margin = {k: v - cfg.similarity_threshold for k, v in plain.items()}
+        if white is not None:
+            margin = {k: np.minimum(margin[k], white[k] - cfg.whiten_threshold) for k in margin}
+        z = adapted_logits(self.head, margin, emb, self.adapt_cfg, 0.0)
+        if self.adapt_cfg.gate == "plain":   # the head re-ranks and vetoes the plain rule's proposals only
+            z = {k: np.where(margin[k] >= 0, v, -np.inf) for k, v in z.items()}
+        owner = exclusive_owner(z) if self.exclusive else None
+        for inst, zi in z.items():
+            g = (guides or {}).get(inst)
+            s = zi if owner is None else np.where(owner == inst, zi, -np.inf)
+            k = pick(s, boxes, 0.0, g, cfg.guidance_radius_px)
+            if k is not None:
+                score = float(adapted_score(zi[k], self.adapt_cfg)) if inst in self.head.weights else float(plain[inst][k])
+                rows.append((inst, kept[k].box, kept[k].conf, score))
+        return rows
+
+    def __call__(self, i: int, rgb: np.ndarray, guides: dict | None = None) -> list[tuple[int, tuple, float, float]]:
         kept, emb = self.embedded.pop(i) if i in self.embedded else self.embed_proposals(i, rgb)
         t3 = time.perf_counter()
         rows = []
@@ -281,21 +343,66 @@ class FrameDetector:
             boxes = [p.box for p in kept]
             plain = self.enrollment.similarity(emb)
             white = self.white.similarity(self.whitening(emb)) if self.whitening is not None else None
-            score = plain if white is None else white
-            owner = exclusive_owner(score) if self.exclusive else None
-            for inst, sims in plain.items():
-                g = (guides or {}).get(inst)
-                s = sims if owner is None else np.where(owner == inst, sims, -np.inf)
-                if white is None:
-                    k = pick(s, boxes, cfg.similarity_threshold, g, cfg.guidance_radius_px)
-                else:   # both gates; among the proposals passing them the best whitened score
-                    w = np.where(s >= cfg.similarity_threshold, white[inst], -np.inf)
-                    k = pick(w, boxes, cfg.whiten_threshold, g, cfg.guidance_radius_px)
-                if k is not None:
-                    rows.append((inst, kept[k].box, kept[k].conf, float(sims[k])))
+            if self.head is not None:
+                rows = self._adapted_rows(kept, boxes, emb, plain, white, guides)
+            else:
+                rows = self._plain_rows(kept, boxes, plain, white, guides)
         self.report.seconds["matching"] += time.perf_counter() - t3
         self.report.proposals += len(kept)
         return sorted(rows)
+
+
+def proposal_embeddings_key(rec: Recording, cfg, encoder, source_name: str) -> str:
+    """What a frame's proposals and their embeddings depend on: the recording (poses included), the
+    front-end knobs that shape proposals and crops, the encoder and the proposal source."""
+    f = to_dict(cfg.frontend)
+    matching = ("similarity_threshold", "whiten", "whiten_threshold", "whiten_shrink", "whiten_frames", "exclusive",
+                "mvpe_pooling", "mvpe_max_photos", "mvpe_autocrop", "svoe_augment", "guidance_radius_px")
+    return outputs.digest("proposal-embeddings", outputs.recording_digest(rec), encoder_id(cfg, encoder), source_name,
+                          {k: v for k, v in f.items() if k not in matching}, to_dict(cfg.io))
+
+
+def load_proposal_embeddings(path: str | Path, key: str) -> dict[int, tuple[list, np.ndarray]] | None:
+    """Every frame's proposals and embeddings from ``path`` when it holds them under ``key``, else None."""
+    from egograph.frontend.proposals import Proposal
+
+    p = Path(path)
+    if not p.is_file():
+        return None
+    try:
+        with np.load(p, allow_pickle=False) as a:
+            if str(a["key"]) != key:
+                return None
+            frame, box, conf, src, emb = a["frame"], a["box"], a["conf"], a["source"], a["embedding"]
+            done = a["frames_done"]
+    except (OSError, ValueError, KeyError):
+        return None
+    out: dict[int, tuple[list, np.ndarray]] = {}
+    order = np.argsort(frame, kind="stable")
+    cuts = np.flatnonzero(np.diff(frame[order])) + 1
+    for rows in np.split(order, cuts) if len(order) else []:
+        out[int(frame[rows[0]])] = ([Proposal(tuple(float(v) for v in box[k]), str(src[k]), float(conf[k])) for k in rows],
+                                    emb[rows].astype(np.float32))
+    for i in done:
+        out.setdefault(int(i), ([], np.zeros((0, emb.shape[1]), np.float32)))
+    return out
+
+
+def save_proposal_embeddings(path: str | Path, key: str, seen: dict[int, tuple[list, np.ndarray]]) -> None:
+    """Write every embedded frame's proposals and embeddings to ``path`` atomically."""
+    from egograph.io.atomic import atomic_path
+
+    frames = sorted(seen)
+    rows = [(i, p, e) for i in frames for p, e in zip(seen[i][0], seen[i][1])]
+    dim = next((len(e) for _, _, e in rows), 0)
+    with atomic_path(path) as tmp:
+        with open(tmp, "wb") as fh:
+            np.savez(fh, key=np.array(key), frames_done=np.asarray(frames, np.int64),
+                     frame=np.asarray([r[0] for r in rows], np.int64),
+                     box=np.asarray([r[1].box for r in rows], np.float64).reshape(-1, 4),
+                     conf=np.asarray([r[1].conf for r in rows], np.float64),
+                     source=np.asarray([r[1].source for r in rows], dtype="U16"),
+                     embedding=np.asarray([r[2] for r in rows], np.float32).reshape(-1, dim))
 
 
 def exclusive_owner(scores: dict[int, np.ndarray]) -> np.ndarray:
@@ -373,16 +480,53 @@ def encoder_id(cfg, encoder_path: str | Path | None) -> dict:
         return {"path": str(p)}
 
 
+def enroll_views(rec: Recording, enroll: str, enc, cfg, report: DetectReport) -> dict[int, np.ndarray]:
+    """The enrollment views of ``enroll`` (svoe | mvpe) embedded by ``enc``, instances that could not
+    be enrolled reported (an error under ``--strict``); an error when none could be."""
+    require_annotations(rec, "instance labels for detection")
+    names = read_labels(rec) or []
+    report.names = names
+    fcfg = cfg.frontend
+    views = enroll_svoe(rec, enc, fcfg, report, len(names)) if enroll == "svoe" else enroll_mvpe(rec, enc, fcfg, names, report)
+    for inst, (where, why) in report.not_enrolled.items():
+        report_problem(rec.strict, where, f"instance {inst} ({report.name(inst)}) not enrolled: {why}")
+    if not views:
+        raise EgographError(f"{rec.seq_dir}: no instance could be enrolled ({enroll}); nothing to detect")
+    report.enrolled = {k: len(v) for k, v in views.items()}
+    return views
+
+
+def adapt_input(rec: Recording, adapt) -> tuple[object, dict | bool]:
+    """``adapt`` (None, a path: an adapt folder with head.npz or a results folder of egograph track, a
+    :class:`~egograph.steps.adapt.Teacher` or an :class:`~egograph.steps.adapt.Adaptation`) -> (the
+    teacher or fitted adaptation, what the detections depend on of it: False without)."""
+    if adapt is None:
+        return None, False
+    from egograph.steps.adapt import HEAD_FILE, Adaptation, adapt_record_inputs, load_adapt, teacher_from_results
+
+    if isinstance(adapt, (str, Path)):
+        adapt = load_adapt(rec, adapt) if (Path(adapt) / HEAD_FILE).is_file() else teacher_from_results(rec, adapt)
+    if isinstance(adapt, Adaptation):
+        return adapt, adapt_record_inputs(adapt)
+    return adapt, {"round": adapt.round, "taught_by": adapt.source}
+
+
 def detect(rec: Recording, enroll: str, cfg, out: str | Path, *, encoder: str | Path | None = None,
            proposals: str | None = None, guide_world: dict[int, np.ndarray] | None = None,
-           overwrite: bool = False, progress: bool = True) -> DetectReport | None:
+           adapt=None, embeddings: str | Path | None = None, overwrite: bool = False,
+           progress: bool = True) -> DetectReport | None:
     """Detect the instances enrolled by ``enroll`` (``svoe`` or ``mvpe``) in every PV frame of
     ``rec``, writing the folder ``out`` (see module doc). ``encoder``/``proposals`` override
     ``cfg.frontend.encoder``/``.proposals`` (``.mvpe_proposals`` for MVPE when set);
     ``guide_world``: optional 3D estimates per instance and frame (3D guidance,
-    ``frontend.guidance_radius_px``). Returns the report, or None when
-    ``out`` already holds this exact run. Nothing enrolled, no PV image or a bad encoder raise
-    before anything is written."""
+    ``frontend.guidance_radius_px``); ``adapt``: a teacher or a fitted head (:func:`adapt_input`;
+    :mod:`egograph.steps.adapt`): proposals are scored by the per-instance head with the cosine as a
+    prior, and ``adapt.json`` in ``out`` says which round, taught by which results; ``embeddings``: a
+    file of every frame's proposals and their embeddings (:func:`proposal_embeddings_key`), read when
+    it holds this recording's under the same front-end knobs and encoder, else written after the pass
+    (rounds of adaptation detect again on the same proposals: only the scoring changes). Returns the
+    report, or None when ``out`` already holds this exact run. Nothing enrolled, no PV image, a bad
+    encoder or a teacher with nothing to teach raise before anything is written."""
     from tqdm import tqdm
 
     from egograph.frontend.encoder import load_encoder
@@ -393,40 +537,55 @@ def detect(rec: Recording, enroll: str, cfg, out: str | Path, *, encoder: str | 
         raise EgographError(f"--enroll {enroll}: one of {', '.join(ENROLLMENTS)}")
     fcfg = cfg.frontend
     source_name = proposals or fcfg.proposals_for(enroll)
-    record = outputs.run_record("detect", cfg, {"recording": outputs.recording_digest(rec), "enroll": enroll,
-                                                "encoder": encoder_id(cfg, encoder), "proposals": source_name,
-                                                "guided": guide_digest(guide_world) or False},
-                                depends_on={"frontend": to_dict(fcfg), "io": to_dict(cfg.io)})
+    teacher, adapt_id = adapt_input(rec, adapt)
+    inputs = {"recording": outputs.recording_digest(rec), "enroll": enroll, "encoder": encoder_id(cfg, encoder),
+              "proposals": source_name, "guided": guide_digest(guide_world) or False}
+    depends = {"frontend": to_dict(fcfg), "io": to_dict(cfg.io)}
+    if adapt_id:   # unadapted runs keep the fingerprint they had before adaptation existed
+        inputs["adapt"] = adapt_id
+        depends["adapt"] = {k: v for k, v in to_dict(cfg.adapt).items() if k not in RUN_LEVEL_ADAPT_KNOBS}
+    record = outputs.run_record("detect", cfg, inputs, depends_on=depends)
     if outputs.up_to_date(Path(out), record, overwrite):
         return None
-    require_annotations(rec, "instance labels for detection")
-    names = read_labels(rec) or []
-    report = DetectReport(names=names)
+    report = DetectReport()
     enc = load_encoder(fcfg, encoder)
-    views = enroll_svoe(rec, enc, fcfg, report, len(names)) if enroll == "svoe" else enroll_mvpe(rec, enc, fcfg, names, report)
-    for inst, (where, why) in report.not_enrolled.items():
-        report_problem(rec.strict, where, f"instance {inst} ({report.name(inst)}) not enrolled: {why}")
-    if not views:
-        raise EgographError(f"{rec.seq_dir}: no instance could be enrolled ({enroll}); nothing to detect")
-    report.enrolled = {k: len(v) for k, v in views.items()}
+    views = enroll_views(rec, enroll, enc, cfg, report)
     enrollment = Enrollment(views, fcfg.mvpe_pooling)
     sources = proposal_sources(rec, fcfg, source_name)
     run = FrameDetector(rec, fcfg, enc, enrollment, sources, report, exclusive=fcfg.exclusive in ("all", enroll))
+    emb_key = proposal_embeddings_key(rec, cfg, encoder, source_name) if embeddings is not None else None
+    stored = load_proposal_embeddings(embeddings, emb_key) if embeddings is not None else None
+    if stored is not None:
+        run.stored = stored
     if fcfg.whiten in ("all", enroll):
         run.use_whitening(background_whitening(rec, run, fcfg, report))
+    adaptation = None
+    if teacher is not None:
+        from egograph.steps.adapt import Adaptation, fit_adaptation
+
+        t0 = time.perf_counter()
+        saved = dict(report.seconds)
+        adaptation = teacher if isinstance(teacher, Adaptation) else fit_adaptation(rec, teacher, cfg, enc, views, run, enroll)
+        report.seconds = saved
+        report.seconds["adapt"] = time.perf_counter() - t0
+        report.adaptation = adaptation
+        run.use_head(adaptation.head, cfg.adapt)
     files: dict[str, str] = {}
     from concurrent.futures import ThreadPoolExecutor
 
     # the next PV image is decoded in a thread (OpenCV releases the GIL) while this frame's
     # proposals and encoder run: "read" is only the time spent waiting for it
     with ThreadPoolExecutor(1) as pool:
-        ahead = pool.submit(read_pv, rec, 0)
+        def read(i: int):   # a frame whose proposals are stored needs no image
+            return STORED if run.stored is not None and i in run.stored else read_pv(rec, i)
+
+        ahead = pool.submit(read, 0)
         for i in tqdm(range(len(rec)), desc=f"detect ({enroll})", unit="frame", disable=not progress, mininterval=1.0):
             ts = int(rec.timestamps[i])
             t0 = time.perf_counter()
             rgb = ahead.result()
             if i + 1 < len(rec):
-                ahead = pool.submit(read_pv, rec, i + 1)
+                ahead = pool.submit(read, i + 1)
             report.seconds["read"] += time.perf_counter() - t0
             detect_frame(rec, i, ts, rgb, run, guide_world, report, files)
     if report.frames == 0:
@@ -439,7 +598,39 @@ def detect(rec: Recording, enroll: str, cfg, out: str | Path, *, encoder: str | 
     from egograph.io.textio import write_text_dir
 
     t0 = time.perf_counter()
+    if embeddings is not None and stored is None:
+        save_proposal_embeddings(embeddings, emb_key, run.seen)
     files.update(outputs.run_files(record, cfg))
+    if adaptation is not None:
+        from egograph.steps.adapt import write_adapt_files
+
+        files.update(write_adapt_files(adaptation))
     write_text_dir(out, files)
     report.seconds["write"] += time.perf_counter() - t0
     return report
+
+
+def carry_detections(rec: Recording, adaptation, cfg, out: str | Path, *, overwrite: bool = False) -> bool:
+    """Iterating stopped (``adaptation.stopped``): ``out`` gets the per-frame files of the detections
+    that taught this round (the round before's) unchanged, its run record and ``adapt.json`` saying
+    so. Returns False when ``out`` already holds exactly this."""
+    from egograph.io.textio import write_text_dir
+    from egograph.steps.adapt import write_adapt_files
+
+    src = Path(adaptation.record["taught_by"]["detections"])
+    stamps = [int(t) for t in rec.timestamps]
+    record = outputs.run_record("detect", cfg, {"recording": outputs.recording_digest(rec),
+                                                "carried": {"from": str(src), "digest": outputs.folder_digest(src)},
+                                                "adapt": {"round": adaptation.round, "stop": adaptation.stopped,
+                                                          "taught_by": adaptation.record["taught_by"]}},
+                                depends_on={})
+    if outputs.up_to_date(Path(out), record, overwrite):
+        return False
+    files = {}
+    for ts in stamps:
+        f = src / f"{ts}.txt"
+        files[f.name] = f.read_text() if f.is_file() else ""
+    files.update(outputs.run_files(record, cfg))
+    files.update(write_adapt_files(adaptation))
+    write_text_dir(out, files)
+    return True

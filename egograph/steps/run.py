@@ -22,6 +22,10 @@ Outputs (``RUNS`` is ``--out``)::
     RUNS/cache/<seq>/track-<tracker>-<key>/   results folder (reference format + intervals.json)
     RUNS/cache/<seq>/eval-<tracker>-<key>/    eval.json (the ``egograph eval --json`` format)
     RUNS/cache/<seq>/regt-<key>/              re-estimated centres and their audit
+    RUNS/cache/<seq>/adapt-r<r>-<key>/        --stages ...,adapt: round r's head (head.npz, adapt.json), taught by
+                                              round r-1's graph results; then detect-<set>-r<r>-<key>/,
+                                              lift-r<r>-<key>.npz, track-<t>-r<r>-<key>/, eval-<t>-r<r>-<key>/
+    RUNS/cache/<seq>/proposals-<key>.npz      with rounds: round 0's proposals and their embeddings, re-scored
     RUNS/<name>/config.yaml                   the resolved configuration
     RUNS/<name>/run.json                      what ran: command, tasks, outputs, status, seconds
     RUNS/<name>/summary.json                  pooled evaluation per tracker, per-sequence rows, failures
@@ -63,14 +67,14 @@ from egograph.core.errors import ConfigError, EgographError, InputError
 from egograph.steps import outputs
 from egograph.steps.dataset import DatasetSequence, list_dataset
 
-STAGES = ("refine", "detect", "lift", "track", "eval", "regt")
+STAGES = ("refine", "detect", "lift", "track", "eval", "adapt", "regt")
 """Stages in pipeline order."""
 
 PLANNED_STAGES: dict[str, str] = {}
 """Stages of the issue that have no step yet (none now): refused with this reason."""
 
 DEFAULT_STAGES = ("lift", "track", "eval")
-NEEDS = {"track": "lift", "eval": "track"}
+NEEDS = {"track": "lift", "eval": "track", "adapt": "track"}
 """The stage a stage reads the output of (``refine`` and ``regt`` need none)."""
 
 RUN_FILE = "run.json"
@@ -100,11 +104,13 @@ class Task:
     link: str                 # its name in RUNS/<name>/<seq>/
     deps: list[str] = field(default_factory=list)
     spec: dict = field(default_factory=dict)
+    round: int = 0            # adaptation round (0: before any head; --stages ...,adapt)
 
     @property
     def label(self) -> str:
-        """``lift``, ``track/graph``: the stage column of the tables."""
-        return self.stage if self.tracker is None else f"{self.stage}/{self.tracker}"
+        """``lift``, ``track/graph``, ``track/graph@r1``: the stage column of the tables."""
+        base = self.stage if self.tracker is None else f"{self.stage}/{self.tracker}"
+        return base + (f"@r{self.round}" if self.round else "")
 
 
 @dataclass
@@ -180,6 +186,29 @@ def stage_keys(cfg, detections: str, refine: bool, trackers: list[str], detect: 
     return k
 
 
+TEACHER = "graph"
+"""The tracker whose results teach the next round's head (``--stages ...,adapt``)."""
+
+
+def round_keys(cfg, keys: dict, trackers: list[str], rounds: int) -> dict:
+    """Cache keys of the adaptation rounds 1..``rounds``: each round's adapt reads the round before's
+    graph results (and detections), its detect the adapt folder, then lift, track and eval as in round 0."""
+    from egograph.steps.track import tracker_sections
+
+    k = dict(keys)
+    sections, io = tracker_sections(cfg), to_dict(cfg.io)
+    prev = "track/" + TEACHER
+    for r in range(1, rounds + 1):
+        k[f"adapt@r{r}"] = outputs.digest("adapt", r, k[prev], to_dict(cfg.adapt), to_dict(cfg.frontend))[:12]
+        k[f"detect@r{r}"] = outputs.digest("detect", r, k[f"adapt@r{r}"])[:12]
+        k[f"lift@r{r}"] = outputs.digest("lift", cfg.lift.result_knobs(), io, ["detect", k[f"detect@r{r}"]])[:12]
+        for t in trackers:
+            k[f"track/{t}@r{r}"] = outputs.digest("track", t, sections, k[f"lift@r{r}"])[:12]
+            k[f"eval/{t}@r{r}"] = outputs.digest("eval", k[f"track/{t}@r{r}"])[:12]
+        prev = f"track/{TEACHER}@r{r}"
+    return k
+
+
 def plan_run(dataset: str | Path, runs: str | Path, cfg, *, stages=None, trackers=None, detections: str = "svoe",
              name: str | None = None) -> RunPlan:
     """The tasks of ``egograph run`` (nothing is written): InputError when the dataset holds no
@@ -202,9 +231,17 @@ def plan_run(dataset: str | Path, runs: str | Path, cfg, *, stages=None, tracker
     if not name or name in (LATEST, CACHE) or "/" in name or name.startswith("."):
         raise ConfigError(f"--name {name!r}: not a usable run name (not empty, {LATEST}, {CACHE}, hidden or a path)")
     keys = stage_keys(cfg, detections, "refine" in stages, trackers, "detect" in stages)
+    rounds = 0
+    if "adapt" in stages:
+        if "detect" not in stages:
+            raise ConfigError("--stages adapt: the tracker teaches egograph detect's front-end; add detect to --stages")
+        if TEACHER not in trackers:
+            raise ConfigError(f"--stages adapt: the {TEACHER} tracker's results teach the head; add {TEACHER} to --trackers")
+        rounds = cfg.adapt.rounds
+        keys = round_keys(cfg, keys, trackers, rounds)
     tasks = []
     for seq in seqs:
-        tasks += sequence_tasks(seq, runs / CACHE / seq.id, stages, trackers, keys, detections)
+        tasks += sequence_tasks(seq, runs / CACHE / seq.id, stages, trackers, keys, detections, rounds)
     plan = RunPlan(dataset, runs, name, stages, trackers, detections, seqs, cfg_digest, tasks)
     for t in tasks:
         t.spec.update(config=str(plan.config_path), log=str(plan.folder / "logs" / (t.key.replace("/", "-") + ".log")))
@@ -212,7 +249,7 @@ def plan_run(dataset: str | Path, runs: str | Path, cfg, *, stages=None, tracker
 
 
 def sequence_tasks(seq: DatasetSequence, cache: Path, stages: list[str], trackers: list[str], keys: dict,
-                   detections: str) -> list[Task]:
+                   detections: str, rounds: int = 0) -> list[Task]:
     """The tasks of one sequence, each after the tasks it depends on."""
     tasks: list[Task] = []
     base = {"sequence": seq.id, "sequence_dir": str(seq.path)}
@@ -229,6 +266,8 @@ def sequence_tasks(seq: DatasetSequence, cache: Path, stages: list[str], tracker
         dets = cache / f"detect-{detections}-{keys['detect']}"
         tasks.append(Task(f"detect/{seq.id}", "detect", seq.id, None, dets, "detections", list(pre),
                           {**base, "stage": "detect", "enroll": detections}))
+        if rounds:   # the rounds detect again on the same proposals: their embeddings are kept
+            tasks[-1].spec["embeddings"] = str(cache / f"proposals-{keys['detect']}.npz")
         lift_pre, lift_detections = [f"detect/{seq.id}"], str(dets)  # refine, if any, comes before detect
     if "lift" in stages:
         obs = cache / f"lift-{keys['lift']}.npz"
@@ -242,11 +281,48 @@ def sequence_tasks(seq: DatasetSequence, cache: Path, stages: list[str], tracker
                 ev = cache / f"eval-{t}-{keys[f'eval/{t}']}"
                 tasks.append(Task(f"eval/{seq.id}/{t}", "eval", seq.id, t, ev, f"eval-{t}", [f"track/{seq.id}/{t}"],
                                   {**base, "stage": "eval", "tracker": t, "results": str(res)}))
+    for r in range(1, rounds + 1):
+        tasks += round_tasks(seq, cache, base, stages, trackers, keys, detections, r)
     if "regt" in stages:
         tasks.append(Task(f"regt/{seq.id}", "regt", seq.id, None, cache / f"regt-{keys['regt']}", "regt", list(pre),
                           {**base, "stage": "regt"}))
     for t in tasks:
         t.spec.update(key=t.key, out=str(t.out))
+    return tasks
+
+
+def round_tasks(seq: DatasetSequence, cache: Path, base: dict, stages: list[str], trackers: list[str], keys: dict,
+                detections: str, r: int) -> list[Task]:
+    """Round ``r`` of adaptation on one sequence: adapt (taught by round r - 1's graph results and
+    the detections they came from) -> detect -> lift -> track -> eval, every output its own."""
+    p = "" if r == 1 else f"@r{r - 1}"
+    prev_det = f"detect/{seq.id}{p}"
+    prev_track = f"track/{seq.id}/{TEACHER}{p}"
+    prev_det_out = cache / (f"detect-{detections}-{keys['detect']}" if r == 1
+                            else f"detect-{detections}-r{r - 1}-{keys[f'detect@r{r - 1}']}")
+    teacher = cache / (f"track-{TEACHER}-{keys['track/' + TEACHER]}" if r == 1
+                       else f"track-{TEACHER}-r{r - 1}-{keys[f'track/{TEACHER}@r{r - 1}']}")
+    sfx = f"@r{r}"
+    ad = cache / f"adapt-r{r}-{keys['adapt' + sfx]}"
+    dets = cache / f"detect-{detections}-r{r}-{keys['detect' + sfx]}"
+    obs = cache / f"lift-r{r}-{keys['lift' + sfx]}.npz"
+    tasks = [Task(f"adapt/{seq.id}{sfx}", "adapt", seq.id, None, ad, f"adapt-r{r}", [prev_track, prev_det],
+                  {**base, "stage": "adapt", "enroll": detections, "results": str(teacher),
+                   "detections": str(prev_det_out)}, r),
+             Task(f"detect/{seq.id}{sfx}", "detect", seq.id, None, dets, f"detections-r{r}", [f"adapt/{seq.id}{sfx}"],
+                  {**base, "stage": "detect", "enroll": detections, "adapt": str(ad),
+                   "embeddings": str(cache / f"proposals-{keys['detect']}.npz")}, r),
+             Task(f"lift/{seq.id}{sfx}", "lift", seq.id, None, obs, f"lifted-r{r}.npz", [f"detect/{seq.id}{sfx}"],
+                  {**base, "stage": "lift", "detections": str(dets)}, r)]
+    for t in trackers:
+        res = cache / f"track-{t}-r{r}-{keys[f'track/{t}{sfx}']}"
+        tasks.append(Task(f"track/{seq.id}/{t}{sfx}", "track", seq.id, t, res, f"{t}-r{r}", [f"lift/{seq.id}{sfx}"],
+                          {**base, "stage": "track", "tracker": t, "observations": str(obs)}, r))
+        if "eval" in stages:
+            ev = cache / f"eval-{t}-r{r}-{keys[f'eval/{t}{sfx}']}"
+            tasks.append(Task(f"eval/{seq.id}/{t}{sfx}", "eval", seq.id, t, ev, f"eval-{t}-r{r}",
+                              [f"track/{seq.id}/{t}{sfx}"], {**base, "stage": "eval", "tracker": t, "results": str(res)},
+                              r))
     return tasks
 
 
@@ -337,12 +413,30 @@ def require_pv_images(rec) -> None:
 
 
 def stage_detect(spec: dict) -> None:
-    from egograph.steps.detect import detect
+    from egograph.steps.detect import carry_detections, detect
 
     cfg = _config(spec)
     rec = _open(spec, cfg)
     require_pv_images(rec)
-    detect(rec, spec["enroll"], cfg, spec["out"], progress=False)
+    if spec.get("adapt"):
+        from egograph.steps.adapt import load_adapt
+
+        adaptation = load_adapt(rec, spec["adapt"])
+        if adaptation.stopped:   # iterating stopped: the detections of the round before, carried
+            carry_detections(rec, adaptation, cfg, spec["out"])
+            return
+        detect(rec, spec["enroll"], cfg, spec["out"], adapt=adaptation, embeddings=spec.get("embeddings"),
+               progress=False)
+        return
+    detect(rec, spec["enroll"], cfg, spec["out"], embeddings=spec.get("embeddings"), progress=False)
+
+
+def stage_adapt(spec: dict) -> None:
+    from egograph.steps.adapt import adapt, teacher_from_results
+
+    cfg = _config(spec)
+    rec = _open(spec, cfg)
+    adapt(rec, spec["enroll"], teacher_from_results(rec, spec["results"], spec["detections"]), cfg, spec["out"])
 
 
 def stage_lift(spec: dict) -> None:
@@ -405,7 +499,7 @@ def stage_regt(spec: dict) -> None:
 
 
 STAGE_FUNCTIONS = {"refine": stage_refine, "detect": stage_detect, "lift": stage_lift, "track": stage_track, "eval": stage_eval,
-                   "regt": stage_regt}
+                   "adapt": stage_adapt, "regt": stage_regt}
 
 
 # ------------------------------------------------------------------ the cluster
@@ -549,16 +643,22 @@ def execute(plan: RunPlan, client, progress=None) -> dict:
     return {t.key: results[t.key] for t in plan.tasks}
 
 
-def pooled_reports(plan: RunPlan, results: dict) -> dict:
+def last_round(plan: RunPlan) -> int:
+    return max((t.round for t in plan.tasks), default=0)
+
+
+def pooled_reports(plan: RunPlan, results: dict, round: int | None = None) -> dict:
     """tracker -> EvalReport of every sequence whose evaluation succeeded, in sequence order:
-    the counts of each sequence read back exactly (raw sums), pooled by summing them."""
+    the counts of each sequence read back exactly (raw sums), pooled by summing them; of the last
+    adaptation round unless ``round`` says which."""
     from egograph.eval.report import EvalReport
 
+    r = last_round(plan) if round is None else round
     reports = {}
     for tracker in plan.trackers:
         pooled = EvalReport()
         for t in plan.tasks:
-            if t.stage == "eval" and t.tracker == tracker and results[t.key]["status"] == OK:
+            if t.stage == "eval" and t.tracker == tracker and t.round == r and results[t.key]["status"] == OK:
                 one = EvalReport.from_json_dict(json.loads((t.out / EVAL_FILE).read_text()))
                 for name, s in one.sequences.items():
                     pooled.add(name, s.result, s.intervals, s.labels, s.frames_without_file)
@@ -580,10 +680,29 @@ def summarize(plan: RunPlan, results: dict) -> dict:
         if r["status"] != OK:
             failures.append({"sequence": t.sequence, "stage": t.label, "status": r["status"],
                              "error": (r.get("error") or "").replace(runs, "RUNS")})
-    return {"egograph_version": __version__, "dataset": str(plan.dataset), "stages": plan.stages,
-            "trackers": plan.trackers, "detections": plan.detections, "config_digest": plan.config_digest,
-            "sequences": status, "failures": failures,
-            "evaluation": {k: r.to_json_dict() for k, r in pooled_reports(plan, results).items()}}
+    out = {"egograph_version": __version__, "dataset": str(plan.dataset), "stages": plan.stages,
+           "trackers": plan.trackers, "detections": plan.detections, "config_digest": plan.config_digest,
+           "sequences": status, "failures": failures,
+           "evaluation": {k: r.to_json_dict() for k, r in pooled_reports(plan, results).items()}}
+    if last_round(plan):
+        out["rounds"] = {str(r): {"evaluation": {k: v.to_json_dict() for k, v in pooled_reports(plan, results, r).items()},
+                                  "adapt": adapt_summaries(plan, results, r)}
+                         for r in range(0, last_round(plan) + 1)}
+    return out
+
+
+def adapt_summaries(plan: RunPlan, results: dict, r: int) -> dict:
+    """Per sequence, what round ``r``'s adapt did (its adapt.json: held-back check, heads, stop)."""
+    out = {}
+    for t in plan.tasks:
+        if t.stage == "adapt" and t.round == r and results[t.key]["status"] == OK:
+            try:
+                doc = json.loads((t.out / "adapt.json").read_text())
+            except (OSError, ValueError):
+                continue
+            out[t.sequence] = {"holdback_auc": doc.get("holdback_auc"), "stop": doc.get("stop"),
+                               "heads": sorted(int(k) for k, v in doc.get("instances", {}).items() if v.get("head"))}
+    return out
 
 
 def finish_run(plan: RunPlan, results: dict, command: str | None = None) -> dict:

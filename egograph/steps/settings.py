@@ -12,7 +12,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 from egograph.core.config import Checked, section
-from egograph.frontend.config import FrontendConfig
+from egograph.frontend.config import AdaptConfig, FrontendConfig
 from egograph.geometry.config import LiftConfig
 from egograph.io.config import IoConfig
 from egograph.poses.config import RefineConfig
@@ -31,3 +31,5 @@ class EgographConfig(Checked):
     joint: JointConfig = section(JointConfig, "joint mode: poses and still-object landmarks in one graph (--joint-poses)")
     frontend: FrontendConfig = section(FrontendConfig, "the appearance front-end: proposals, ONNX encoder, "
                                                        "enrollment matching (egograph detect)")
+    adapt: AdaptConfig = section(AdaptConfig, "the tracker teaches the front-end: a per-recording appearance head "
+                                              "from the graph's confident stands (egograph detect --adapt)")
