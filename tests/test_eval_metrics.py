@@ -73,3 +73,30 @@ def test_observable_intervals_count_lifted_true_detections_above_the_threshold()
 def test_ratio_and_target_checks():
     assert ratio(3, 2) == 1.5 and np.isnan(ratio(1, 0))
     assert target_checks({}) == []  # no rows: nothing to check
+
+
+def _report(per_seq: dict[str, tuple[list, list, float]]):
+    """An EvalReport whose sequences have the given (tp, fp, l2) at two thresholds (10 GT frames)."""
+    from egograph.eval.protocol import Counts, SequenceResult
+    from egograph.eval.report import EvalReport
+
+    rep = EvalReport(thresholds=(0.25, 1.5))
+    for name, (tp, fp, l2) in per_seq.items():
+        n = 10
+        c = Counts((0.25, 1.5), tp=tp, fp=fp, fn=[n - t for t in tp], n_gt=n, n_pred=tp[0] + fp[0],
+                   l2_sum=l2 * n, l2_n=n)
+        rep.add(name, SequenceResult(c))
+    return rep
+
+
+def test_dominance_misses_name_the_recording_threshold_and_baseline():
+    from egograph.eval.metrics import dominance_misses
+
+    ours = _report({"a": ([8, 9], [2, 1], 0.1), "b": ([3, 9], [7, 1], 0.2)})
+    theirs = _report({"a": ([5, 8], [5, 2], 0.5), "b": ([4, 7], [6, 3], 0.6)})
+    misses = dominance_misses(ours, {"memory": theirs})
+    # pooled 11/20 against 9/20 at 0.25 m: dominates; recording b loses P and R at 0.25 m only
+    assert {(m.scope, m.against, m.metric) for m in misses} == {("b", "memory", "P@0.25"), ("b", "memory", "R@0.25")}
+    assert dominance_misses(ours, {"memory": theirs}, per_sequence=False) == []
+    worse_l2 = _report({"a": ([8, 9], [2, 1], 0.9), "b": ([4, 9], [6, 1], 0.9)})
+    assert [m.metric for m in dominance_misses(worse_l2, {"kf": theirs}, per_sequence=False)] == ["L2"]

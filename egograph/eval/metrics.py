@@ -171,3 +171,38 @@ def target_checks(reports: Mapping[str, Mapping[str, EvalReport]],
             ok = r >= bound if op == ">=" else r <= bound
             out.append(TargetCheck(det_set, row, base, metric, r, op, bound, ok))
     return out
+
+
+@dataclass
+class DominanceMiss:
+    """One place where a tracker does not beat a baseline: ``metric`` is ``P@tau``, ``R@tau``
+    (percent) or ``L2`` (metres), ``scope`` ``pooled`` or a sequence name."""
+
+    scope: str
+    against: str
+    metric: str
+    ours: float
+    theirs: float
+
+
+def dominance_misses(ours: EvalReport, baselines: Mapping[str, EvalReport],
+                     per_sequence: bool = True) -> list[DominanceMiss]:
+    """Where ``ours`` fails to dominate each baseline: P and R at every threshold at least the
+    baseline's, L2 below it; on the pooled counts and (``per_sequence``) on every sequence both
+    reports hold. An empty list: it dominates everywhere."""
+    scopes = [("pooled", ours.total, {k: b.total for k, b in baselines.items()})]
+    if per_sequence:
+        for name, seq in ours.sequences.items():
+            theirs = {k: b.sequences[name].result.total for k, b in baselines.items() if name in b.sequences}
+            scopes.append((name, seq.result.total, theirs))
+    out = []
+    for scope, a, theirs in scopes:
+        for against, b in theirs.items():
+            for j, tau in enumerate(a.thresholds):
+                for metric, x, y in ((f"P@{tau:g}", a.precision[j], b.precision[j]),
+                                     (f"R@{tau:g}", a.recall[j], b.recall[j])):
+                    if x < y - 1e-12:
+                        out.append(DominanceMiss(scope, against, metric, 100 * x, 100 * y))
+            if not a.l2_m < b.l2_m and not (np.isnan(a.l2_m) and np.isnan(b.l2_m)):
+                out.append(DominanceMiss(scope, against, "L2", a.l2_m, b.l2_m))
+    return out

@@ -160,7 +160,8 @@ class AdaptConfig(Checked):
     min_support: int = knob(8, "a stand teaches the head when it holds at least this many inlier detections "
                                "(the interval's n_observations)", min=1)
     min_confidence: float = knob(0.5, "a stand teaches the head only with at least this confidence (the interval's "
-                                      "confidence: inlier share x (1 - exp(-inliers / graph.confidence_scale)), 0-1)",
+                                      "confidence: the place chain's posterior of the run x the place's reality, 0-1; "
+                                      "0.5 is a place the matcher scores cannot tell from the false matches)",
                                  min=0.0, max=1.0)
     box_margin: float = knob(0.25, "a detection is an inlier of its instance's stand when the PV projection of "
                                    "the stand's centre falls inside its box enlarged by this share of its side on "
