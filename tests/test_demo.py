@@ -106,6 +106,12 @@ def test_the_demo_ends_with_the_path_of_its_pictures(tmp_path):
     # the set-up and the steps before the tables stay short (stderr: progress bars, warnings)
     first_table = next(i for i, line in enumerate(lines) if "IT3DEgo evaluation" in line)
     assert first_table + len(p.stderr.splitlines()) < 120, (first_table, p.stderr[-2000:])
+    # per detection set, whether the graph beats every baseline at every threshold, and if not why
+    verdicts = [line for line in lines if line.startswith(("graph: ", "graph-causal: "))]
+    assert len(verdicts) == 4, verdicts
+    for i, line in enumerate(lines):
+        if line.startswith(("graph: below", "graph-causal: below")):
+            assert lines[i + 1].startswith("  why: "), lines[i:i + 2]
     images = page_images(index)
     want = {"metrics.png"} | {f"{kind}_{re.sub(r'[^A-Za-z0-9_.-]+', '_', row).strip('._')}.png"
                               for row in DEMO_ROWS for kind in ("timeline", "map")}

@@ -66,6 +66,18 @@ SECTIONS: tuple[Section, ...] = (
             "Then recall at 0.25 m against lag, and the per-frame latency of the online API "
             "(`OnlineTracker.step` + `collect`) over a 50,000-frame stream of 8 instances.",
             f"{PY} tools/bench_causal.py --seeds {HELD_OUT_12} --frames 3000 --plot .cache/lag.png"),
+    Section("bench_trackers-heldout-robust", "Does every egograph tracker beat every baseline? (issue 29)",
+            "`memory`, `kf`, `graph` and `graph-causal` on the same robust observations of the 12 held-out "
+            "recordings (seeds 301-312; no knob was chosen on them), SVOE and MVPE: the tables pooled, then "
+            "whether each egograph tracker's P and R at every threshold are at least memory's and kf's and its L2 "
+            "below theirs, pooled and (offline graph) on every recording, with the figures that miss.",
+            f"{PY} tools/bench_trackers.py --seeds {HELD_OUT_12} --frames 3000 --modes robust --trackers memory kf "
+            "graph graph-causal --no-oracle --jobs 1 --json-tag heldout-robust --out .cache/bench_trackers_robust"),
+    Section("bench_causal-heldout6", "Causal tracking against its ceiling, and P, R, L2 against lag (issue 29)",
+            "graph-causal at lags 0, 1, 2, 5, 10 and 30 s against memory, kf, the offline graph and the causal "
+            "ceiling on held-out recordings 301-306, robust lifting, pooled: issue 29's causal targets and the lag "
+            "at which the causal answer reaches 95 % of the offline recall at 0.25 m.",
+            f"{PY} tools/bench_causal.py --seeds $(seq 301 306) --frames 3000 --no-latency --json-tag heldout6"),
     Section("bench_causal-fixed-scale", "Causal tracking without the online noise-scale fit",
             "The same as above with the detection sigmas as configured (`graph.noise.online_auto=false`).",
             f"{PY} tools/bench_causal.py --seeds {HELD_OUT_12} --frames 3000 --no-latency "
