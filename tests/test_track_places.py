@@ -137,3 +137,16 @@ def test_a_carry_that_ends_out_of_sight_is_unseen_not_back_at_its_start():
     _, runs = chain_runs(rows)
     assert [r.place for r in runs] == [0, -1, -2]
     assert UNSEEN_STATE != ANY_CARRY and stand_state(0) == 2
+
+
+def test_the_fast_posterior_equals_the_log_space_one():
+    from egograph.track.places import _posterior_log, posterior
+
+    rng = np.random.default_rng(4)
+    t_len, s = 400, 7
+    log_a = np.log(rng.dirichlet(np.ones(s) * 0.3, size=s))
+    log_a[0, 3] = -np.inf                                   # a forbidden transition
+    log_e = np.where(rng.random((t_len, s)) < 0.1, rng.normal(-40, 20, (t_len, s)), 0.0)
+    log_prior = np.log(rng.dirichlet(np.ones(s)))
+    fast, slow = posterior(log_e, log_a, log_prior), _posterior_log(log_e, log_a, log_prior)
+    assert np.allclose(fast, slow, atol=1e-9) and np.allclose(fast.sum(axis=1), 1.0)

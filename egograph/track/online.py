@@ -265,9 +265,16 @@ class OnlineTracker:
         if not held_now:
             delta[carry_states(len(st.places))] += np.log1p(-self.cfg.places.carry_detect_rate)
         claims = self._claims(inst)
+        claimed = np.zeros(len(st.places), bool)
+        if claims and st.places:  # another instance holds a place within exclusion_radius_m with more inliers
+            cx = np.array([xyz for xyz, _ in claims], float).reshape(-1, 3)
+            cn = np.array([n for _, n in claims], float)
+            px = np.array([p.xyz for p in st.places], float).reshape(-1, 3)
+            pn = np.array([p.n for p in st.places], float)
+            near = np.linalg.norm(px[:, None] - cx[None], axis=2) <= self.cfg.exclusion_radius_m
+            claimed = (near & (cn[None] > pn[:, None])).any(axis=1)
         for j, p in enumerate(st.places):
-            if not self._held_up(p) or any(n > p.n and np.linalg.norm(xyz - p.xyz) <= self.cfg.exclusion_radius_m
-                                           for xyz, n in claims):
+            if claimed[j] or not self._held_up(p):
                 delta[stand_state(j)] = -np.inf  # in mid-air, or another instance's: not a place to stand
         if self.negative is not None:
             self._check_negative(inst, st, frame, delta)
@@ -365,14 +372,21 @@ class OnlineTracker:
         """(place, alias candidate) of the place whose inlier gate one of a detection's candidates
         ``cands`` (C, 3) falls in, or that lies within ``merge_radius_m`` of it, the closest in the
         Mahalanobis sense; (-1, -1) when none."""
-        best, best_d2, best_c = -1, np.inf, -1
         ok = np.flatnonzero(np.isfinite(cands[:, 0]))
-        for j, p in enumerate(st.places):
-            d = cands[ok] - p.xyz
-            d2 = np.einsum("ci,cij,cj->c", d, np.linalg.inv(cand_cov[ok] + p.covariance), d)
-            c = int(np.argmin(d2))
-            if d2[c] < best_d2 and (d2[c] <= self.cfg.inlier_chi2 or np.linalg.norm(d[c]) <= self.cfg.merge_radius_m):
-                best, best_d2, best_c = j, float(d2[c]), int(ok[c])
+        if not st.places or len(ok) == 0:
+            return -1, -1
+        px = np.array([p.xyz for p in st.places], float)                       # (P, 3)
+        pc = np.array([p.covariance for p in st.places], float)                # (P, 3, 3)
+        d = cands[ok][None] - px[:, None]                                      # (P, C, 3)
+        d2 = np.einsum("pci,pcij,pcj->pc", d, np.linalg.inv(cand_cov[ok][None] + pc[:, None]), d)
+        c = np.argmin(d2, axis=1)                                              # each place's best candidate
+        rows = np.arange(len(px))
+        best_d2 = d2[rows, c]
+        fits = (best_d2 <= self.cfg.inlier_chi2) | (np.linalg.norm(d[rows, c], axis=1) <= self.cfg.merge_radius_m)
+        if not fits.any():
+            return -1, -1
+        j = int(np.flatnonzero(fits)[np.argmin(best_d2[fits])])               # first of equals, as a loop would
+        best, best_c = j, int(ok[c[j]])
         return best, best_c
 
     def _in_hand(self, st: _Instance, ts: int, world: np.ndarray, camera: np.ndarray, rng: np.ndarray,

@@ -321,9 +321,17 @@ def row_log_likelihoods(spots: Sequence[tuple[np.ndarray, np.ndarray, int]], k: 
     carried = np.logaddexp(log_true + hand, elsewhere)
     out[:, ANY_CARRY] = carried
     out[:, UNSEEN_STATE] = elsewhere
-    for j in range(k):
-        out[:, stand_state(j)] = np.logaddexp(log_true + at[:, j], log_false(j))
-        out[:, carry_state(j)] = carried
+    if k:  # log_false(j) for every own place at once (the same sums, broadcast over j)
+        nk = n[:k]
+        with np.errstate(divide="ignore", invalid="ignore"):
+            spot = every[:, None] + np.log1p(-np.minimum(np.exp(at_w[:, :k] - every[:, None]), 1.0))
+        spot = np.where(nk[None] == 0, every[:, None], spot)
+        total = np.where(nk == 0, n.sum(), n.sum() - nk)
+        alike = np.logaddexp(spot, np.log(alpha) + log_rho) - np.log(total + alpha)[None]
+        false_k = log_false_share[:, None] + np.logaddexp(np.log1p(-pc.lookalike_share) + log_rho,
+                                                          np.log(pc.lookalike_share) + alike)
+        out[:, [stand_state(j) for j in range(k)]] = np.logaddexp(log_true[:, None] + at[:, :k], false_k)
+        out[:, [carry_state(j) for j in range(k)]] = carried[:, None]
     return out
 
 
@@ -410,8 +418,42 @@ def map_path(log_e: np.ndarray, log_a: np.ndarray, log_prior: np.ndarray) -> np.
 
 
 def posterior(log_e: np.ndarray, log_a: np.ndarray, log_prior: np.ndarray) -> np.ndarray:
-    """(T, S) posterior probability of each state per frame given every frame (forward-backward,
-    log space)."""
+    """(T, S) posterior probability of each state per frame given every frame (forward-backward).
+    Run in the probability domain with each frame's emissions scaled by their largest and the
+    messages normalised per frame (a matrix-vector product per frame, several times faster than
+    log-sum-exp); where that underflows (no state with a usable emission reachable), in log space."""
+    t_len, s = log_e.shape
+    a = np.exp(log_a)
+    e = np.exp(log_e - np.max(log_e, axis=1, keepdims=True))
+    fwd = np.empty((t_len, s))
+    bwd = np.empty((t_len, s))
+    f = np.exp(log_prior - np.max(log_prior)) * e[0]
+    for t in range(t_len):
+        if t:
+            f = (f @ a) * e[t]
+        total = f.sum()
+        if not (total > 0 and np.isfinite(total)):
+            return _posterior_log(log_e, log_a, log_prior)
+        f = f / total
+        fwd[t] = f
+    b = np.ones(s)
+    bwd[-1] = b
+    for t in range(t_len - 2, -1, -1):
+        b = a @ (e[t + 1] * b)
+        total = b.sum()
+        if not (total > 0 and np.isfinite(total)):
+            return _posterior_log(log_e, log_a, log_prior)
+        b = b / total
+        bwd[t] = b
+    g = fwd * bwd
+    norm = g.sum(axis=1, keepdims=True)
+    if not np.all(norm > 0):
+        return _posterior_log(log_e, log_a, log_prior)
+    return g / norm
+
+
+def _posterior_log(log_e: np.ndarray, log_a: np.ndarray, log_prior: np.ndarray) -> np.ndarray:
+    """:func:`posterior` in log space (slower, never underflows)."""
     t_len, s = log_e.shape
     fwd = np.empty((t_len, s))
     bwd = np.zeros((t_len, s))
