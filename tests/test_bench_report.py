@@ -139,3 +139,17 @@ def test_cell_formats():
         benchdoc.make_table("t", ["a", "b"], [[1, 2]], ["d"])
     with pytest.raises(ValueError, match="a row of 1 cells"):
         benchdoc.make_table("t", ["a", "b"], [[1]])
+
+
+def test_the_readme_score_tables_are_rendered_from_the_records():
+    sys.path.insert(0, str(REPO / "tools"))
+    import bench_report
+
+    docs = bench_report.load(REPO / "docs" / "bench")
+    readme = (REPO / "README.md").read_text()
+    assert bench_report.README_BEGIN in readme and bench_report.README_END in readme
+    block = bench_report.readme_scores(docs)
+    assert block is not None and block in readme
+    # a changed record changes the README block: nothing in it is typed by hand
+    tampered = bench_report.with_readme_scores(readme.replace(block, "| stale |"), docs)
+    assert tampered == readme
