@@ -34,8 +34,10 @@ step() {
 
 # System libraries: libusb-1.0 (Open3D), EGL + Mesa's software OpenGL (the generator's PV renderer).
 NEED=()
-ldconfig -p 2>/dev/null | grep -q 'libusb-1.0.so.0' || NEED+=(libusb-1.0-0)
-ldconfig -p 2>/dev/null | grep -q 'libEGL.so.1' || NEED+=(libegl1)
+# (grep without -q reads all of ldconfig's output: with -q it may close the pipe early, ldconfig
+# dies of SIGPIPE, and under pipefail a library that is there looks missing, at random)
+ldconfig -p 2>/dev/null | grep 'libusb-1.0.so.0' >/dev/null || NEED+=(libusb-1.0-0)
+ldconfig -p 2>/dev/null | grep 'libEGL.so.1' >/dev/null || NEED+=(libegl1)
 SWRAST=""  # (ls of both paths fails whenever one is missing: test each)
 for f in /usr/lib/*/dri/swrast_dri.so /usr/lib/dri/swrast_dri.so; do [ -e "$f" ] && SWRAST="$f"; done
 [ -n "$SWRAST" ] || NEED+=(libgl1-mesa-dri)
