@@ -118,7 +118,7 @@ def _colmap_constraints(rec, cfg, pv_estimate, progress, stats):
         pairs = pair_list(frames, pv_estimate, cfg)
         (tmp / "pairs.txt").write_text("".join(f"{names[a]} {names[b]}\n" for a, b in pairs))
         match = pycolmap.FeatureMatchingOptions()
-        match.num_threads = 2
+        match.num_threads = 1  # two threads gave other matches run to run under load (a CI run): same bytes first
         verify = pycolmap.TwoViewGeometryOptions()
         verify.ransac.random_seed = cfg.seed
         pycolmap.match_image_pairs(db_path, matching_options=match,
@@ -268,8 +268,9 @@ def _prior_bundle_adjustment(recon, frames, names, pv_estimate, cfg: RefineConfi
     for pid in recon.point3D_ids():
         config.add_variable_point(pid)
     config.set_constant_cam_intrinsics(next(iter(recon.cameras)))
-    adjuster = pycolmap.create_pose_prior_ceres_bundle_adjuster(pycolmap.BundleAdjustmentOptions(),
-                                                                pycolmap.PosePriorBundleAdjustmentOptions(), config,
-                                                                priors, recon)
+    ba = pycolmap.BundleAdjustmentOptions()
+    ba.ceres.solver_options.num_threads = 1  # Ceres' threaded evaluation sums in another order run to run
+    adjuster = pycolmap.create_pose_prior_ceres_bundle_adjuster(ba, pycolmap.PosePriorBundleAdjustmentOptions(),
+                                                                config, priors, recon)
     adjuster.solve()
     return adjuster
