@@ -87,12 +87,6 @@ def print_graph_targets(reports: dict, tallies: dict) -> None:
                     for c in target_checks(reports)], ["", "", "", "", ".2f", "", "yes|NO"])
 
 
-def _miss_text(m) -> str:
-    if m.metric == "L2":
-        return f"L2 {m.ours:.3f} >= {m.against} {m.theirs:.3f} m"
-    return f"{m.metric} {m.ours:.1f} < {m.against} {m.theirs:.1f}"
-
-
 def print_dominance(reports: dict) -> None:
     """Does each egograph tracker beat memory and kf (robust lift) at every threshold, P and R,
     with a lower L2? Offline graph: pooled and on every recording; graph-causal: pooled."""
@@ -108,7 +102,7 @@ def print_dominance(reports: dict) -> None:
             for scope in scopes:
                 mine = [m for m in misses if m.scope == scope]
                 rows.append([det_set, row, scope, "yes" if not mine else "NO",
-                             "; ".join(_miss_text(m) for m in mine) or "-"])
+                             "; ".join(m.describe() for m in mine) or "-"])
     benchdoc.table("Dominance over memory and kf (robust lift): P and R at every threshold >=, L2 <",
                    ["set", "tracker", "scope", "dominates", "misses"], rows)
 

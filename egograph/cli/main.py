@@ -473,8 +473,7 @@ def print_dominance(con, det_set: str, reports: dict) -> None:
         if not misses:
             con.print(f"{row}: at least every baseline's P and R at every threshold, and a lower L2", soft_wrap=True)
         else:
-            text = "; ".join(f"{m.metric} {m.ours:.{3 if m.metric == 'L2' else 1}f} against {m.against} "
-                             f"{m.theirs:.{3 if m.metric == 'L2' else 1}f}" for m in misses)
+            text = "; ".join(m.describe() for m in misses)
             con.print(f"{row}: below a baseline on this recording: {text}", soft_wrap=True)
             con.print(f"  why: {_dominance_why(ours.total, base, misses)}", soft_wrap=True)
 

@@ -184,6 +184,12 @@ class DominanceMiss:
     ours: float
     theirs: float
 
+    def describe(self) -> str:
+        """The miss as figures, e.g. ``R@0.25 11.9 < memory 17.4`` or ``L2 0.753 >= memory 0.643 m``."""
+        if self.metric == "L2":
+            return f"L2 {self.ours:.3f} >= {self.against} {self.theirs:.3f} m"
+        return f"{self.metric} {self.ours:.1f} < {self.against} {self.theirs:.1f}"
+
 
 def dominance_misses(ours: EvalReport, baselines: Mapping[str, EvalReport],
                      per_sequence: bool = True) -> list[DominanceMiss]:

@@ -51,7 +51,6 @@ from egograph.core.types import PositionInterval, Prediction
 from egograph.core.units import TICKS_PER_SECOND
 from egograph.geometry.observations import Observations
 from egograph.track.config import GraphConfig
-from egograph.track.detection_factor import detection_covariances
 from egograph.track.noise_scale import centred, refit
 from egograph.track.places import (
     ANY_CARRY,
@@ -65,6 +64,7 @@ from egograph.track.places import (
     stand_state,
     state_kind,
     transitions,
+    viterbi_step,
 )
 from egograph.track.segments import NegativeFn, SupportFn, moves_with_camera, with_floor
 
@@ -255,10 +255,7 @@ class OnlineTracker:
     def _advance(self, inst: int, st: _Instance, frame: int, ts: int, obs: Observations | None,
                  sel: np.ndarray | None) -> None:
         """One frame of the place chain: transition, new places, detections, negative evidence."""
-        k = len(st.places)
-        m = st.delta[:, None] + self._transitions(k)
-        back = np.argmax(m, axis=0)
-        delta = m[back, np.arange(len(back))]
+        delta, back = viterbi_step(st.delta, self._transitions(len(st.places)))
         held_now = False
         if sel is not None and len(sel):
             delta, back, held_now = self._observe(inst, st, frame, ts, obs, sel, delta, back)
@@ -299,10 +296,11 @@ class OnlineTracker:
         log_true = log_true_share(obs.score[sel], cfg)
         # each detection joins the place whose gate (or merge radius) its best alias candidate falls in
         joins = np.full(len(sel), -1)
+        chosen = np.zeros(len(sel), int)  # the alias candidate a joining detection takes
         for r in range(len(sel)):
             j, c = self._nearest_place(st, cands[r], cand_cov[r])
             if j >= 0:
-                joins[r], world[r] = j, cands[r, c]
+                joins[r], chosen[r], world[r] = j, c, cands[r, c]
         # near detections that no place seen from afar explains, moving with the head: in hand
         young = ts - HAND_WINDOW_S * TICKS_PER_SECOND
         free = np.array([j < 0 or (st.places[j].near_only and st.places[j].first_seen >= young) for j in joins], bool)
@@ -312,7 +310,7 @@ class OnlineTracker:
         for r in np.flatnonzero((joins < 0) & ~in_hand):
             j, c = self._nearest_place(st, cands[r], cand_cov[r])  # a place founded this frame
             if j >= 0:
-                joins[r], world[r] = j, cands[r, c]
+                joins[r], chosen[r], world[r] = j, c, cands[r, c]
                 continue
             founded[r] = len(st.places)
             delta, back = self._found(st, world[r], cand_cov[r, 0], frame, ts, delta, back)
@@ -325,9 +323,10 @@ class OnlineTracker:
                 s = stand_state(int(founded[r]))
                 ll[r, s] = np.logaddexp(log_true[r] + np.log(cfg.places.false_density), ll[r, UNSEEN_STATE])
         delta = delta + ll.sum(axis=0)
-        info = np.linalg.inv(detection_covariances(world, camera, self._noise))
-        for r in np.flatnonzero(joins >= 0):
-            st.places[int(joins[r])].add(world[r], info[r], frame, ts, bool(rng[r] <= cfg.carry_range_m))
+        joined = np.flatnonzero(joins >= 0)
+        info = np.linalg.inv(cand_cov[joined, chosen[joined]])  # each at the candidate it took
+        for r, inf in zip(joined, info):
+            st.places[int(joins[r])].add(world[r], inf, frame, ts, bool(rng[r] <= cfg.carry_range_m))
         for r in np.flatnonzero(founded >= 0):
             st.places[int(founded[r])].near_only = bool(rng[r] <= cfg.carry_range_m)
         for j in sorted({int(v) for v in joins if v >= 0}, reverse=True):

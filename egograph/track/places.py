@@ -15,8 +15,9 @@ Two objects cannot stand in one place at once (:func:`claim_places`): a place wi
 belongs to that instance (a look-alike), and its detections become false-match evidence.
 
 The *place chain* (:func:`place_chain`) is a hidden Markov chain over the PV frames whose states
-are the instance's places, ``CARRIED`` (in hand: nothing to report) and ``UNSEEN`` (put down
-where it was never seen again: reported where the hand last held it, at low confidence).
+are standing at each of the instance's places, carried (in hand: nothing to report) and
+``UNSEEN_STATE`` (put down where it was never seen again: reported where the hand last held it,
+at low confidence); :func:`stand_state`, :func:`carry_state` and ``ANY_CARRY`` number them.
 Each accepted detection is, with probability ``places.true_share``, the object (near the place,
 with the detection covariance plus the place's, the nearest AHAT alias candidate; near the head
 when carried), otherwise a false match: spread over the scene (``places.false_density`` per m^3)
@@ -40,10 +41,6 @@ import numpy as np
 from egograph.track.config import GraphConfig
 from egograph.track.detection_factor import detection_covariances, mahalanobis2
 from egograph.track.segments import Segment, SupportFn, make_segment, moves_with_camera, robust_point
-
-CARRIED, UNSEEN = "carried", "unseen"
-"""The two states of the place chain besides the places themselves."""
-
 
 @dataclass(eq=False)  # identity: a place is one location, whatever its numbers
 class Place:
@@ -400,6 +397,15 @@ def transitions(k: int, cfg: GraphConfig, fps: float) -> tuple[np.ndarray, np.nd
         return np.log(a), np.log(prior)
 
 
+def viterbi_step(v: np.ndarray, log_a: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """One max-product step of the chain: from the best log score of each state ``v`` (S,) and the
+    log transitions ``log_a`` (from, to), the best score of reaching each state (before its
+    emission) and the state it comes from (ties to the lower index)."""
+    m = v[:, None] + log_a
+    back = np.argmax(m, axis=0)
+    return m[back, np.arange(len(back))], back
+
+
 def map_path(log_e: np.ndarray, log_a: np.ndarray, log_prior: np.ndarray) -> np.ndarray:
     """The most probable state per frame (Viterbi in log space): (T,) state indices. Ties go to the
     lower state index, so the path is deterministic."""
@@ -407,9 +413,8 @@ def map_path(log_e: np.ndarray, log_a: np.ndarray, log_prior: np.ndarray) -> np.
     back = np.zeros((t_len, s), np.int32)
     v = log_prior + log_e[0]
     for t in range(1, t_len):
-        m = v[:, None] + log_a
-        back[t] = np.argmax(m, axis=0)
-        v = m[back[t], np.arange(s)] + log_e[t]
+        reach, back[t] = viterbi_step(v, log_a)
+        v = reach + log_e[t]
     path = np.empty(t_len, np.int32)
     path[-1] = int(np.argmax(v))
     for t in range(t_len - 1, 0, -1):
