@@ -121,7 +121,12 @@ def test_joint_mode_does_no_harm_with_exact_poses(exact_rec):
         return [iv for iv in res.intervals if iv.confidence >= 0.5]
 
     a, b = confident(joint), confident(plain)
-    assert [(iv.instance, iv.t_start, iv.t_end) for iv in a] == [(iv.instance, iv.t_start, iv.t_end) for iv in b]
+    # A move nobody saw is placed where the posteriors cross in its detection-free gap
+    # (places.unseen_moves_at_crossing): a continuous function of the evidence, which sub-millimetre
+    # pose changes may shift by a frame or two.
+    assert [iv.instance for iv in a] == [iv.instance for iv in b]
+    frame = 333_333
+    assert all(abs(x.t_start - y.t_start) <= 3 * frame and abs(x.t_end - y.t_end) <= 3 * frame for x, y in zip(a, b))
     assert np.abs(np.array([iv.xyz for iv in a]) - np.array([iv.xyz for iv in b])).max() < 0.01
     assert joint.metadata["joint_poses"]["stands"] == jp.report["stands"]
 

@@ -219,7 +219,8 @@ def test_cost_per_frame_stays_flat_on_a_long_stream():
         trk.collect()
         cpu[f] = time.process_time() - c
         assert all(len(st.places) <= cfg.online_max_places for st in trk.inst.values())
-    assert all(len(p.rows) <= cfg.online_max_rows for st in trk.inst.values() for p in st.places)
+    assert all(p.n_kept <= cfg.online_max_rows and len(p.row_world) <= cfg.online_max_rows
+               for st in trk.inst.values() for p in st.places)
     assert all(len(st.back) <= trk._keep_back for st in trk.inst.values())
     assert max(p.n for st in trk.inst.values() for p in st.places) > cfg.online_max_rows  # the cap bit
     fifth = n // 5
@@ -297,3 +298,20 @@ def test_an_unseen_carry_is_guessed_put_down_where_last_held(after_s):
         assert guessed == list(range(CARRY[1] + 40, 450))
         assert all(np.linalg.norm(np.subtract(now[f][0][1], put)) < 0.25 for f in guessed)
     assert now[460] and np.linalg.norm(np.subtract(now[460][0][1], put)) < 0.1  # seen again: there
+
+
+def test_a_place_keeps_its_newest_inliers_for_the_noise_fit():
+    """The kept inliers are the newest ``max_rows`` (the ring overwrites the oldest), and a rescale
+    scales every kept information matrix."""
+    from egograph.track.online import OnlinePlace
+
+    info = np.eye(3) * 1e4
+    p = OnlinePlace(info=info.copy(), info_x=info @ np.zeros(3), n=1, first_frame=0, last_frame=0, first_seen=0,
+                    last_seen=0, max_rows=5)
+    p.keep(np.zeros(3), info)
+    for i in range(1, 12):
+        p.add(np.array([i, 0.0, 0.0]), info, i, i, False)
+    world, kept_info = p.kept()
+    assert p.n == 12 and len(world) == 5 and sorted(world[:, 0].tolist()) == [7, 8, 9, 10, 11]
+    p.rescale(4.0)
+    assert np.allclose(p.kept()[1], info / 4.0) and np.allclose(p.info, 12 * info / 4.0)

@@ -22,6 +22,7 @@ from egograph.track.places import (
     posterior,
     stand_state,
     transitions,
+    unseen_moves_at_crossing,
 )
 
 CFG = GraphConfig(negative_evidence=False)
@@ -139,14 +140,54 @@ def test_a_carry_that_ends_out_of_sight_is_unseen_not_back_at_its_start():
     assert UNSEEN_STATE != ANY_CARRY and stand_state(0) == 2
 
 
-def test_the_fast_posterior_equals_the_log_space_one():
-    from egograph.track.places import _posterior_log, posterior
+def test_the_posterior_survives_emissions_that_underflow_in_probabilities():
+    """Frame 1's only reachable state is e^-800 as likely as an unreachable one: the scaled
+    forward-backward underflows there, the log-space one does not, and the answer is certain."""
+    with np.errstate(divide="ignore"):
+        log_a, log_prior = np.log(np.array([[1.0, 0.0], [0.5, 0.5]])), np.log(np.array([1.0, 0.0]))
+    log_e = np.zeros((5, 2))
+    log_e[1] = [-800.0, 0.0]
+    assert np.allclose(posterior(log_e, log_a, log_prior), [[1.0, 0.0]] * 5)
+    assert list(map_path(log_e, log_a, log_prior)) == [0] * 5
 
+
+def test_a_move_nobody_saw_happens_where_the_new_place_becomes_the_more_probable():
+    """Seen at place 0 until frame 99, at place 1 from frame 400: every frame of the gap scores the
+    same as the moment of the move, and the path moves where the posteriors cross (the middle,
+    as the move is as likely at any frame), not where rounding put it."""
+    cfg = GraphConfig(negative_evidence=False)
+    log_a, log_prior = transitions(2, cfg, 30.0)
+    log_e = np.zeros((500, n_states(2)))
+    seen = np.zeros(500, bool)
+    seen[:100:5] = seen[400::5] = True
+    log_e[:100:5, stand_state(1)] = log_e[400::5, stand_state(0)] = -20.0
+    log_e[seen, :2] = log_e[seen, 3::2] = -20.0      # neither carried nor at an unseen place
+    post = posterior(log_e, log_a, log_prior)
+    path = unseen_moves_at_crossing(map_path(log_e, log_a, log_prior), seen, post)
+    moved = int(np.flatnonzero(path == stand_state(1))[0])
+    assert set(path[:moved]) == {stand_state(0)} and set(path[moved:]) == {stand_state(1)}
+    assert abs(moved - 248) <= 5
+    assert post[moved - 1, stand_state(0)] >= post[moved - 1, stand_state(1)]
+    assert post[moved, stand_state(1)] > post[moved, stand_state(0)]
+
+
+def test_the_posterior_is_the_log_space_one_on_a_long_chain_with_forbidden_moves():
     rng = np.random.default_rng(4)
     t_len, s = 400, 7
-    log_a = np.log(rng.dirichlet(np.ones(s) * 0.3, size=s))
-    log_a[0, 3] = -np.inf                                   # a forbidden transition
+    a = rng.dirichlet(np.ones(s) * 0.3, size=s)
+    a[0, 3] = 0.0                                           # a forbidden transition
+    with np.errstate(divide="ignore"):
+        log_a = np.log(a / a.sum(axis=1, keepdims=True))
     log_e = np.where(rng.random((t_len, s)) < 0.1, rng.normal(-40, 20, (t_len, s)), 0.0)
     log_prior = np.log(rng.dirichlet(np.ones(s)))
-    fast, slow = posterior(log_e, log_a, log_prior), _posterior_log(log_e, log_a, log_prior)
+    fwd = np.empty((t_len, s))
+    bwd = np.zeros((t_len, s))
+    fwd[0] = log_prior + log_e[0]
+    for t in range(1, t_len):
+        fwd[t] = np.logaddexp.reduce(fwd[t - 1][:, None] + log_a, axis=0) + log_e[t]
+    for t in range(t_len - 2, -1, -1):
+        bwd[t] = np.logaddexp.reduce(log_a + (log_e[t + 1] + bwd[t + 1])[None, :], axis=1)
+    g = fwd + bwd
+    slow = np.exp(g - np.logaddexp.reduce(g, axis=1)[:, None])
+    fast = posterior(log_e, log_a, log_prior)
     assert np.allclose(fast, slow, atol=1e-9) and np.allclose(fast.sum(axis=1), 1.0)

@@ -83,7 +83,7 @@ def _instance_graph(world: np.ndarray, cov: np.ndarray, chunk: np.ndarray, init:
         values.insert(L(k), gtsam.Point3(*p))
         if k:
             add_break_factors(graph, values, k, cfg, None if kinds is None else kinds[k - 1])
-    add_detection_factors(graph, np.array([L(int(c)) for c in chunk]), world, cov, cfg.noise)
+    add_detection_factors(graph, np.array([L(k) for k in range(len(init))], np.uint64)[chunk], world, cov, cfg.noise)
     return graph, values
 
 

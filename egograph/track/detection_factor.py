@@ -56,9 +56,14 @@ def robust(base: gtsam.noiseModel.Base, kernel: str, width: float) -> gtsam.nois
 def add_detection_factors(graph: gtsam.NonlinearFactorGraph, keys: np.ndarray, world: np.ndarray,
                           covariances: np.ndarray, cfg: DetectionNoiseConfig) -> None:
     """One robust ``PriorFactorPoint3`` per row: landmark ``keys[j]`` observed at ``world[j]``."""
-    for key, p, cov in zip(keys, world, covariances):
-        base = gtsam.noiseModel.Gaussian.Covariance(cov)
-        graph.add(gtsam.PriorFactorPoint3(int(key), gtsam.Point3(*p), robust(base, cfg.kernel, cfg.kernel_width)))
+    if cfg.kernel != "none" and cfg.kernel not in ESTIMATORS:
+        raise ValueError(f"unknown robust kernel {cfg.kernel!r}; choose one of {', '.join(KERNELS)}")
+    # One m-estimator for every row (GTSAM shares it read-only): this loop runs per detection per solve.
+    estimator = ESTIMATORS[cfg.kernel].Create(cfg.kernel_width) if cfg.kernel != "none" else None
+    gaussian, wrap, prior = gtsam.noiseModel.Gaussian.Covariance, gtsam.noiseModel.Robust.Create, gtsam.PriorFactorPoint3
+    for key, p, cov in zip(keys.tolist(), np.asarray(world, float), covariances):
+        base = gaussian(cov)
+        graph.add(prior(key, p, base if estimator is None else wrap(estimator, base)))
 
 
 def mahalanobis2(world: np.ndarray, centre: np.ndarray, covariances: np.ndarray) -> np.ndarray:

@@ -94,6 +94,7 @@ def _track_instance_offline(instance: int, obs: Observations, t_frames: np.ndarr
     sol.segments = [seg for seg in segs if seg.stationary]
     sol.world, sol.cov, sol.frames = world, cov, obs.frame.astype(np.int64)
     sol.camera, sol.range_m, sol.segment_rows, sol.score = obs.camera, obs.range_m, rows_of, obs.score
+    sol.chain_segments = segs
     sol.candidates = obs.candidates if obs.candidates.shape[1] > 1 else world[:, None, :]
     return sol
 
@@ -171,7 +172,7 @@ def _places_and_chains(solutions: list[InstanceSolution], t_frames: np.ndarray, 
     for sol in solutions:
         if sol.world is None:
             continue
-        found[sol.instance] = candidate_places(sol.segment_rows, sol.world, sol.cov, sol.camera, sol.range_m,
+        found[sol.instance] = candidate_places(sol.chain_segments, sol.world, sol.cov, sol.camera, sol.range_m,
                                                sol.frames, cfg, support)
     kept = claim_places(found, cfg.exclusion_radius_m)
     reality = place_reality(kept, {s.instance: np.asarray(s.score, float) for s in solutions if s.world is not None})

@@ -83,15 +83,39 @@ class OnlinePlace:
     last_frame: int
     first_seen: int             # ticks
     last_seen: int
-    rows: deque                 # newest inliers: (world, information) for the noise-scale fit
+    max_rows: int               # newest inliers kept for the noise-scale fit (graph.online_max_rows)
     xyz: np.ndarray = field(default_factory=lambda: np.zeros(3))
     covariance: np.ndarray = field(default_factory=lambda: np.eye(3))
     supported: tuple | None = None      # (inliers when tested, whether the scene holds it up)
     near_only: bool = False             # every inlier seen from within carry_range_m
+    # The kept inliers, a ring in arrays (the fit reads them all at once, every
+    # noise.online_refit_every detections): position (world, metres) and information (1/m^2).
+    row_world: np.ndarray = field(default_factory=lambda: np.zeros((0, 3)))
+    row_info: np.ndarray = field(default_factory=lambda: np.zeros((0, 3, 3)))
+    n_kept: int = 0
+    next_row: int = 0           # where the next inlier goes once the ring is full
 
     def update(self) -> None:
         self.covariance = np.linalg.inv(self.info)
         self.xyz = self.covariance @ self.info_x
+
+    def keep(self, world: np.ndarray, info: np.ndarray) -> None:
+        """Keep one inlier for the noise-scale fit (the oldest goes beyond ``max_rows``)."""
+        if self.n_kept == len(self.row_world) < self.max_rows:  # full below the cap: twice the room
+            grow = min(max(4, 2 * self.n_kept), self.max_rows)
+            self.row_world = np.concatenate([self.row_world, np.zeros((grow - self.n_kept, 3))])
+            self.row_info = np.concatenate([self.row_info, np.zeros((grow - self.n_kept, 3, 3))])
+        if self.n_kept < len(self.row_world):
+            at = self.n_kept
+            self.n_kept += 1
+        else:
+            at = self.next_row
+            self.next_row = (self.next_row + 1) % self.max_rows
+        self.row_world[at], self.row_info[at] = world, info
+
+    def kept(self) -> tuple[np.ndarray, np.ndarray]:
+        """The kept inliers: positions (K, 3) and information (K, 3, 3), in no particular order."""
+        return self.row_world[:self.n_kept], self.row_info[:self.n_kept]
 
     def add(self, world: np.ndarray, info: np.ndarray, frame: int, ticks: int, near: bool) -> None:
         self.near_only = self.near_only and near
@@ -99,13 +123,13 @@ class OnlinePlace:
         self.info_x = self.info_x + info @ world
         self.n += 1
         self.last_frame, self.last_seen = frame, ticks
-        self.rows.append((world, info))
+        self.keep(world, info)
         self.update()
 
     def rescale(self, f2: float) -> None:
         """Every inlier's covariance times ``f2`` (a new detection noise scale squared)."""
         self.info, self.info_x = self.info / f2, self.info_x / f2
-        self.rows = deque(((w, i / f2) for w, i in self.rows), maxlen=self.rows.maxlen)
+        self.row_info[:self.n_kept] /= f2
         self.update()
 
 
@@ -360,7 +384,8 @@ class OnlineTracker:
         score, src = _predecessors(prev, into)
         info = np.linalg.inv(cov)
         p = OnlinePlace(info=info, info_x=info @ world, n=1, first_frame=frame, last_frame=frame, first_seen=ts,
-                        last_seen=ts, rows=deque([(world, info)], maxlen=self.cfg.online_max_rows))
+                        last_seen=ts, max_rows=self.cfg.online_max_rows)
+        p.keep(world, info)
         p.update()
         st.places.append(p)
         delta = np.concatenate([delta, [score, -np.inf]])
@@ -437,7 +462,8 @@ class OnlineTracker:
         a.info, a.info_x, a.n = a.info + b.info, a.info_x + b.info_x, a.n + b.n
         a.first_frame, a.first_seen = min(a.first_frame, b.first_frame), min(a.first_seen, b.first_seen)
         a.near_only = a.near_only and b.near_only
-        a.rows.extend(b.rows)
+        for w, i in zip(*b.kept()):
+            a.keep(w, i)
         a.update()
         for s_keep, s_lose in ((stand_state(keep), stand_state(lose)), (carry_state(keep), carry_state(lose))):
             if delta[s_lose] > delta[s_keep]:
@@ -497,9 +523,8 @@ class OnlineTracker:
         d2 = []
         for st in self.inst.values():
             for p in st.places:
-                if p.n >= 2 and len(p.rows) >= 2:
-                    w = np.array([x[0] for x in p.rows])
-                    info = np.array([x[1] for x in p.rows])
+                if p.n >= 2 and p.n_kept >= 2:
+                    w, info = p.kept()
                     d = w - p.xyz
                     d2.append(centred(np.einsum("mi,mij,mj->m", d, info, d)))
         new = refit(np.concatenate(d2) if d2 else np.zeros(0), self.scale, self.cfg.noise, self.cfg.inlier_chi2)

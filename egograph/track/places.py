@@ -73,18 +73,21 @@ def _gate(world: np.ndarray, cov: np.ndarray, xyz: np.ndarray, cfg: GraphConfig)
     return mahalanobis2(world, xyz, cov) <= cfg.inlier_chi2
 
 
-def candidate_places(segment_rows: Sequence[np.ndarray], world: np.ndarray, cov: np.ndarray, camera: np.ndarray,
-                     range_m: np.ndarray, frames: np.ndarray, cfg: GraphConfig,
+def candidate_places(segments: Sequence[Segment | np.ndarray], world: np.ndarray, cov: np.ndarray,
+                     camera: np.ndarray, range_m: np.ndarray, frames: np.ndarray, cfg: GraphConfig,
                      support: SupportFn | None = None) -> list[Place]:
-    """An instance's places from its chain's segments (``segment_rows``: rows of each run of chunks
-    joined by switches that stayed on), strongest first. ``world``/``cov``: each detection after the
-    alias re-choice and its covariance (m, m^2); ``camera``, ``range_m``: where it was seen from."""
+    """An instance's places from its chain's segments (runs of chunks joined by switches that stayed
+    on: as made by :func:`egograph.track.segments.make_segment` from ``world``/``cov``, or as their
+    rows), strongest first. ``world``/``cov``: each detection after the alias re-choice and its
+    covariance (m, m^2); ``camera``, ``range_m``: where it was seen from."""
     pc = cfg.places
     segs = []
-    for rows in segment_rows:
-        if len(rows) == 0:
+    for seg in segments:
+        if not isinstance(seg, Segment):
+            seg = make_segment(seg, world, cov, cfg) if len(seg) else None
+        if seg is None:
             continue
-        seg = make_segment(rows, world, cov, cfg)
+        rows = seg.rows
         if seg.n_inliers >= pc.segment_min_inliers and not moves_with_camera(world[rows], camera[rows],
                                                                             range_m[rows], cfg):
             segs.append(seg)
@@ -204,21 +207,48 @@ def chance_of_place(place: Place, cov: np.ndarray, n_rows: int, cfg: GraphConfig
 # --------------------------------------------------------------------------- the place chain
 
 
+FAR_LOG_DENSITY = -100.0
+"""A detection-spot log density below this is left at its upper bound (:func:`log_gauss_spots`):
+every use adds it to terms of log density above -20 (a false match lands anywhere), where e^-80
+does not change a float64."""
+
+
 def log_gauss_spots(cands: np.ndarray, cov: np.ndarray, xyz: np.ndarray, spot_cov: np.ndarray) -> np.ndarray:
     """(M, P): per detection and spot, the largest log N(c; xyz_p, C_c + spot_cov_p) over the
     detection's alias candidates ``c`` (``cands`` (M, C, 3), NaN padded, world metres) with their
     covariances ``cov`` (M, C, 3, 3) m^2; ``xyz`` (P, 3), ``spot_cov`` (P, 3, 3): the candidate that
-    best explains each spot."""
+    best explains each spot.
+
+    This runs for every detection against every place of every instance, and most pairs are metres
+    apart. An upper bound first (the largest eigenvalue of a covariance is at most its trace, and
+    det(C_c + spot_cov) >= det(C_c)); only pairs whose bound reaches ``FAR_LOG_DENSITY`` are
+    evaluated, the others keep their bound. Those are inverted in closed form (adjugate over
+    determinant of a symmetric 3 x 3): batched LAPACK solves cost several times more per tiny matrix."""
     m, c = cands.shape[:2]
     p = len(xyz)
     if p == 0 or m == 0:
         return np.full((m, p), -np.inf)
     ok = np.isfinite(cands[..., 0])                                   # (M, C)
-    d = np.where(ok[:, None, :, None], cands[:, None] - xyz[None, :, None], 0.0)          # (M, P, C, 3)
-    total = cov[:, None] + spot_cov[None, :, None]                                         # (M, P, C, 3, 3)
-    total = np.where(ok[:, None, :, None, None], total, np.eye(3))
-    q = np.einsum("mpci,mpci->mpc", d, np.linalg.solve(total, d[..., None])[..., 0])
-    ll = -0.5 * q - 0.5 * np.linalg.slogdet(total)[1] - 1.5 * np.log(2.0 * np.pi)
+    x = np.where(ok[..., None], cands, 0.0)
+    cov = np.where(ok[..., None, None], cov, np.eye(3))
+    d2 = np.maximum((x * x).sum(-1)[:, None] + (xyz * xyz).sum(-1)[None, :, None]
+                    - 2.0 * np.einsum("mci,pi->mpc", x, xyz), 0.0)    # (M, P, C) squared distance
+    trace = np.trace(cov, axis1=-2, axis2=-1)[:, None] + np.trace(spot_cov, axis1=-2, axis2=-1)[None, :, None]
+    log_norm = -0.5 * np.linalg.slogdet(cov)[1] - 1.5 * np.log(2.0 * np.pi)                # (M, C)
+    ll = -0.5 * d2 / trace + log_norm[:, None]                        # the bound
+    near = ok[:, None] & (ll > FAR_LOG_DENSITY)
+    i, j, k = np.nonzero(near)
+    d = x[i, k] - xyz[j]
+    total = cov[i, k] + spot_cov[j]
+    xx, yy, zz = total[:, 0, 0], total[:, 1, 1], total[:, 2, 2]
+    xy, yz, xz = total[:, 0, 1], total[:, 1, 2], total[:, 0, 2]
+    a_xx, a_yy, a_zz = yy * zz - yz * yz, xx * zz - xz * xz, xx * yy - xy * xy
+    a_xy, a_yz, a_xz = xz * yz - xy * zz, xy * xz - xx * yz, xy * yz - yy * xz
+    det = xx * a_xx + xy * a_xy + xz * a_xz
+    dx, dy, dz = d[:, 0], d[:, 1], d[:, 2]
+    q = (dx * dx * a_xx + dy * dy * a_yy + dz * dz * a_zz
+         + 2.0 * (dx * dy * a_xy + dy * dz * a_yz + dx * dz * a_xz)) / det
+    ll[i, j, k] = -0.5 * q - 0.5 * np.log(det) - 1.5 * np.log(2.0 * np.pi)
     return np.where(ok[:, None, :], ll, -np.inf).max(axis=2)
 
 
@@ -398,78 +428,62 @@ def transitions(k: int, cfg: GraphConfig, fps: float) -> tuple[np.ndarray, np.nd
 
 
 def viterbi_step(v: np.ndarray, log_a: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """One max-product step of the chain: from the best log score of each state ``v`` (S,) and the
-    log transitions ``log_a`` (from, to), the best score of reaching each state (before its
-    emission) and the state it comes from (ties to the lower index)."""
-    m = v[:, None] + log_a
-    back = np.argmax(m, axis=0)
-    return m[back, np.arange(len(back))], back
+    """One max-product step of the chain: from the best log score of each state ``v`` (..., S) and
+    the log transitions ``log_a`` (..., from, to), the best score of reaching each state (before its
+    emission) and the state it comes from (ties to the lower index). Leading axes are a batch."""
+    m = v[..., :, None] + log_a
+    return m.max(axis=-2), np.argmax(m, axis=-2)
+
+
+def _chain_arrays(log_e: np.ndarray, log_a: np.ndarray, log_prior: np.ndarray
+                  ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The chain as hmmlearn's recursions take it: first-frame and transition probabilities (C
+    order), and each frame's emission log-likelihoods relative to its largest (the same path and
+    posteriors, and scaled forward-backward cannot underflow on a likely state)."""
+    top = np.max(log_e, axis=1, keepdims=True)
+    frame_log_e = np.ascontiguousarray(log_e - np.where(np.isfinite(top), top, 0.0))
+    return np.ascontiguousarray(np.exp(log_prior)), np.ascontiguousarray(np.exp(log_a)), frame_log_e
+
+
+# The chain's recursions run in hmmlearn's compiled module, the one its models call: a frame is a
+# (S, S) step, too small for numpy to pay its per-call cost on 10^4-10^5 frames. (The model classes
+# would import scikit-learn, about a second per process, to reach the same functions.)
 
 
 def map_path(log_e: np.ndarray, log_a: np.ndarray, log_prior: np.ndarray) -> np.ndarray:
-    """The most probable state per frame (Viterbi in log space): (T,) state indices. Ties go to the
-    lower state index, so the path is deterministic."""
-    t_len, s = log_e.shape
-    back = np.zeros((t_len, s), np.int32)
-    v = log_prior + log_e[0]
-    for t in range(1, t_len):
-        reach, back[t] = viterbi_step(v, log_a)
-        v = reach + log_e[t]
-    path = np.empty(t_len, np.int32)
-    path[-1] = int(np.argmax(v))
-    for t in range(t_len - 1, 0, -1):
-        path[t - 1] = back[t, path[t]]
-    return path
+    """The most probable state per frame of a chain with emission log-likelihoods ``log_e`` (T, S),
+    log transitions ``log_a`` (from, to) and first-frame log prior ``log_prior`` (S,): (T,) state
+    indices (Viterbi). Ties go to the lower state index (hmmlearn's backtrack takes the higher one,
+    so the chain goes in with its states reversed)."""
+    from hmmlearn import _hmmc
+
+    rev = slice(None, None, -1)
+    prior, a, frame_log_e = _chain_arrays(log_e[:, rev], log_a[rev, rev], log_prior[rev])
+    with np.errstate(divide="ignore"):
+        _, path = _hmmc.viterbi(prior, a, frame_log_e)
+    return (log_e.shape[1] - 1 - np.asarray(path)).astype(np.int32)
 
 
 def posterior(log_e: np.ndarray, log_a: np.ndarray, log_prior: np.ndarray) -> np.ndarray:
-    """(T, S) posterior probability of each state per frame given every frame (forward-backward).
-    Run in the probability domain with each frame's emissions scaled by their largest and the
-    messages normalised per frame (a matrix-vector product per frame, several times faster than
-    log-sum-exp); where that underflows (no state with a usable emission reachable), in log space."""
-    t_len, s = log_e.shape
-    a = np.exp(log_a)
-    e = np.exp(log_e - np.max(log_e, axis=1, keepdims=True))
-    fwd = np.empty((t_len, s))
-    bwd = np.empty((t_len, s))
-    f = np.exp(log_prior - np.max(log_prior)) * e[0]
-    for t in range(t_len):
-        if t:
-            f = (f @ a) * e[t]
-        total = f.sum()
-        if not (total > 0 and np.isfinite(total)):
-            return _posterior_log(log_e, log_a, log_prior)
-        f = f / total
-        fwd[t] = f
-    b = np.ones(s)
-    bwd[-1] = b
-    for t in range(t_len - 2, -1, -1):
-        b = a @ (e[t + 1] * b)
-        total = b.sum()
-        if not (total > 0 and np.isfinite(total)):
-            return _posterior_log(log_e, log_a, log_prior)
-        b = b / total
-        bwd[t] = b
-    g = fwd * bwd
-    norm = g.sum(axis=1, keepdims=True)
-    if not np.all(norm > 0):
-        return _posterior_log(log_e, log_a, log_prior)
-    return g / norm
+    """(T, S) posterior probability of each state per frame given every frame (forward-backward),
+    as :func:`map_path`. In scaled probabilities; where those underflow (no state with a usable
+    emission reachable), in log space."""
+    from hmmlearn import _hmmc
 
-
-def _posterior_log(log_e: np.ndarray, log_a: np.ndarray, log_prior: np.ndarray) -> np.ndarray:
-    """:func:`posterior` in log space (slower, never underflows)."""
-    t_len, s = log_e.shape
-    fwd = np.empty((t_len, s))
-    bwd = np.zeros((t_len, s))
-    fwd[0] = log_prior + log_e[0]
-    for t in range(1, t_len):
-        fwd[t] = np.logaddexp.reduce(fwd[t - 1][:, None] + log_a, axis=0) + log_e[t]
-    for t in range(t_len - 2, -1, -1):
-        bwd[t] = np.logaddexp.reduce(log_a + (log_e[t + 1] + bwd[t + 1])[None, :], axis=1)
-    g = fwd + bwd
-    g -= np.logaddexp.reduce(g, axis=1)[:, None]
-    return np.exp(g)
+    prior, a, frame_log_e = _chain_arrays(log_e, log_a, log_prior)
+    with np.errstate(under="ignore", divide="ignore", invalid="ignore"):
+        try:
+            e = np.exp(frame_log_e)
+            _, fwd, scaling = _hmmc.forward_scaling(prior, a, e)
+            g = fwd * _hmmc.backward_scaling(prior, a, e, scaling)
+            total = g.sum(axis=1, keepdims=True)
+            if np.all(total > 0) and np.all(np.isfinite(g)):
+                return g / total
+        except ValueError:  # hmmlearn: "forward pass failed with underflow"
+            pass
+        _, fwd = _hmmc.forward_log(prior, a, frame_log_e)
+        g = fwd + _hmmc.backward_log(prior, a, frame_log_e)
+        return np.exp(g - np.logaddexp.reduce(g, axis=1, keepdims=True))
 
 
 @dataclass
@@ -509,5 +523,30 @@ def place_chain(places: Sequence[Place], others: Sequence[Place], cands: np.ndar
     """An instance's place chain solved offline: its runs (MAP path) with their posterior confidence."""
     log_e = emissions(places, others, cands, cov, score, frames, in_hand, n_frames, cfg)
     log_a, log_prior = transitions(len(places), cfg, fps)
-    path = map_path(log_e, log_a, log_prior)
-    return state_runs(path, posterior(log_e, log_a, log_prior), len(places))
+    seen = np.zeros(n_frames, bool)
+    seen[frames] = True
+    post = posterior(log_e, log_a, log_prior)
+    return state_runs(unseen_moves_at_crossing(map_path(log_e, log_a, log_prior), seen, post), post, len(places))
+
+
+def unseen_moves_at_crossing(path: np.ndarray, seen: np.ndarray, post: np.ndarray) -> np.ndarray:
+    """The path with each move from one place straight to another (a move nobody saw) set at the
+    frame of its detection-free gap (``seen`` (T,) bool: frames with a detection) where the new
+    place's posterior probability (``post`` (T, S)) first exceeds the old one's. In the gap both
+    places emit nothing and stay with the same probability, so every frame of it is an equally
+    probable moment for the move: Viterbi picks one by rounding. Per frame, the more probable
+    place is the better answer."""
+    path = path.copy()
+    stand = (path >= 2) & (path % 2 == 0)
+    seen_at = np.flatnonzero(seen)
+    for t in np.flatnonzero(stand[1:] & stand[:-1] & (path[1:] != path[:-1])) + 1:
+        a, b = int(path[t - 1]), int(path[t])
+        i = np.searchsorted(seen_at, t)
+        lo = int(seen_at[i - 1]) + 1 if i > 0 else 0
+        hi = int(seen_at[i]) if i < len(seen_at) else len(path)
+        if not ((path[lo:t] == a).all() and (path[t:hi] == b).all()):
+            continue  # not a plain gap between the two (another change in it)
+        later = np.flatnonzero(post[lo:hi, b] > post[lo:hi, a])
+        cross = lo + int(later[0]) if len(later) else hi
+        path[lo:cross], path[cross:hi] = a, b
+    return path
