@@ -452,8 +452,8 @@ class OnlineTracker:
                     ) -> tuple[np.ndarray, np.ndarray]:
         """Place ``j`` moved within ``merge_radius_m`` of another: one place, the stronger keeps the
         inliers of both and the better score of each state."""
-        near = [i for i, q in enumerate(st.places)
-                if i != j and np.linalg.norm(q.xyz - st.places[j].xyz) <= self.cfg.merge_radius_m]
+        gap = np.linalg.norm(np.array([q.xyz for q in st.places]) - st.places[j].xyz, axis=1)
+        near = [int(i) for i in np.flatnonzero(gap <= self.cfg.merge_radius_m) if i != j]
         if not near:
             return delta, back
         i = max(near, key=lambda q: st.places[q].n)
