@@ -59,6 +59,7 @@ from egograph.track.places import (
     carry_state,
     carry_states,
     log_true_share,
+    mahalanobis2_3d,
     n_states,
     row_log_likelihoods,
     stand_state,
@@ -146,6 +147,18 @@ class _Instance:
     n_rows: int = 0
     last_negative_check: int = -1
     created: int = 0                    # the PV frame of its first detection
+    version: int = 0                    # bumped whenever a place is added, moved, merged or dropped
+    arrays: tuple | None = None         # (version, centres (k, 3), covariances (k, 3, 3), inliers (k,))
+
+    def place_arrays(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Its places' centres (world, metres), covariances (m^2) and inlier counts, as arrays
+        (rebuilt only after a change: they are read per frame and per detection)."""
+        if self.arrays is None or self.arrays[0] != self.version:
+            self.arrays = (self.version,
+                           np.array([p.xyz for p in self.places], float).reshape(-1, 3),
+                           np.array([p.covariance for p in self.places], float).reshape(-1, 3, 3),
+                           np.array([p.n for p in self.places], float))
+        return self.arrays[1:]
 
 
 def alias_candidates(obs: Observations, sel: np.ndarray) -> np.ndarray:
@@ -290,8 +303,7 @@ class OnlineTracker:
         if claims and st.places:  # another instance holds a place within exclusion_radius_m with more inliers
             cx = np.array([xyz for xyz, _ in claims], float).reshape(-1, 3)
             cn = np.array([n for _, n in claims], float)
-            px = np.array([p.xyz for p in st.places], float).reshape(-1, 3)
-            pn = np.array([p.n for p in st.places], float)
+            px, _, pn = st.place_arrays()
             near = np.linalg.norm(px[:, None] - cx[None], axis=2) <= self.cfg.exclusion_radius_m
             claimed = (near & (cn[None] > pn[:, None])).any(axis=1)
         for j, p in enumerate(st.places):
@@ -340,7 +352,12 @@ class OnlineTracker:
             delta, back = self._found(st, world[r], cand_cov[r, 0], frame, ts, delta, back)
         k = len(st.places)
         new = set(int(j) for j in founded if j >= 0)
-        spots = [(p.xyz, p.covariance, 0 if j in new else p.n) for j, p in enumerate(st.places)] + self._others(inst)
+        own_xyz, own_cov, own_n = st.place_arrays()
+        own_n = own_n.copy()
+        own_n[sorted(new)] = 0
+        others = self._others(inst)
+        spots = (np.concatenate([own_xyz, others[0]]), np.concatenate([own_cov, others[1]]),
+                 np.concatenate([own_n, others[2]]))
         ll = row_log_likelihoods(spots, k, cands, cand_cov, log_true, in_hand, cfg)
         for r in range(len(sel)):
             if founded[r] >= 0:  # the founding detection: prior predictive under its own place
@@ -351,6 +368,7 @@ class OnlineTracker:
         info = np.linalg.inv(cand_cov[joined, chosen[joined]])  # each at the candidate it took
         for r, inf in zip(joined, info):
             st.places[int(joins[r])].add(world[r], inf, frame, ts, bool(rng[r] <= cfg.carry_range_m))
+        st.version += 1
         for r in np.flatnonzero(founded >= 0):
             st.places[int(founded[r])].near_only = bool(rng[r] <= cfg.carry_range_m)
         for j in sorted({int(v) for v in joins if v >= 0}, reverse=True):
@@ -388,6 +406,7 @@ class OnlineTracker:
         p.keep(world, info)
         p.update()
         st.places.append(p)
+        st.version += 1
         delta = np.concatenate([delta, [score, -np.inf]])
         back = np.concatenate([back, [src, src]])
         return delta, back
@@ -399,10 +418,9 @@ class OnlineTracker:
         ok = np.flatnonzero(np.isfinite(cands[:, 0]))
         if not st.places or len(ok) == 0:
             return -1, -1
-        px = np.array([p.xyz for p in st.places], float)                       # (P, 3)
-        pc = np.array([p.covariance for p in st.places], float)                # (P, 3, 3)
+        px, pc, _ = st.place_arrays()                                          # (P, 3), (P, 3, 3)
         d = cands[ok][None] - px[:, None]                                      # (P, C, 3)
-        d2 = np.einsum("pci,pcij,pcj->pc", d, np.linalg.inv(cand_cov[ok][None] + pc[:, None]), d)
+        d2 = mahalanobis2_3d(d, cand_cov[ok][None] + pc[:, None])[0]
         c = np.argmin(d2, axis=1)                                              # each place's best candidate
         rows = np.arange(len(px))
         best_d2 = d2[rows, c]
@@ -443,10 +461,15 @@ class OnlineTracker:
                 out.append((st.places[kind].xyz, st.places[kind].n))
         return out
 
-    def _others(self, inst: int) -> list:
-        """The other instances' places with two or more inliers: where look-alike matches gather."""
-        return [(p.xyz, p.covariance, p.n) for j, st in self.inst.items() if j != inst
-                for p in st.places if p.n >= 2]
+    def _others(self, inst: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """The other instances' places with two or more inliers, where look-alike matches gather:
+        centres (P, 3), covariances (P, 3, 3), inliers (P,)."""
+        parts = [st.place_arrays() for j, st in self.inst.items() if j != inst]
+        if not parts:
+            return np.zeros((0, 3)), np.zeros((0, 3, 3)), np.zeros(0)
+        xyz, cov, n = (np.concatenate(a) for a in zip(*parts))
+        keep = n >= 2
+        return xyz[keep], cov[keep], n[keep]
 
     def _merge_into(self, st: _Instance, j: int, delta: np.ndarray, back: np.ndarray
                     ) -> tuple[np.ndarray, np.ndarray]:
@@ -491,6 +514,7 @@ class OnlineTracker:
             return [s for s in range(n) if s not in gone]
 
         st.places.pop(j)
+        st.version += 1
         st.delta = st.delta[entries(len(st.delta))]
         kept = deque(maxlen=st.back.maxlen)
         for f, b in st.back:
@@ -534,6 +558,7 @@ class OnlineTracker:
         for st in self.inst.values():
             for p in st.places:
                 p.rescale(f2)
+            st.version += 1
         self.scale = new
         self.scales.append(self.scale)
         self._noise = dataclasses.replace(self.cfg.noise, scale=self.scale)

@@ -33,6 +33,7 @@ indices.
 
 from __future__ import annotations
 
+import functools
 from dataclasses import dataclass, field
 from typing import Sequence
 
@@ -213,17 +214,42 @@ every use adds it to terms of log density above -20 (a false match lands anywher
 does not change a float64."""
 
 
+def mahalanobis2_3d(d: np.ndarray, total: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Squared Mahalanobis length of offsets ``d`` (..., 3) under symmetric covariances ``total``
+    (..., 3, 3), and their determinants, in closed form (adjugate over determinant): batched
+    LAPACK solves and inverses cost several times more per tiny matrix."""
+    xx, yy, zz = total[..., 0, 0], total[..., 1, 1], total[..., 2, 2]
+    xy, yz, xz = total[..., 0, 1], total[..., 1, 2], total[..., 0, 2]
+    a_xx, a_yy, a_zz = yy * zz - yz * yz, xx * zz - xz * xz, xx * yy - xy * xy
+    a_xy, a_yz, a_xz = xz * yz - xy * zz, xy * xz - xx * yz, xy * yz - yy * xz
+    det = xx * a_xx + xy * a_xy + xz * a_xz
+    dx, dy, dz = d[..., 0], d[..., 1], d[..., 2]
+    q = (dx * dx * a_xx + dy * dy * a_yy + dz * dz * a_zz
+         + 2.0 * (dx * dy * a_xy + dy * dz * a_yz + dx * dz * a_xz)) / det
+    return q, det
+
+
+def _log_gauss_3d(d: np.ndarray, total: np.ndarray) -> np.ndarray:
+    """log N(d; 0, total), (...,) for offsets (..., 3) and covariances (..., 3, 3)."""
+    q, det = mahalanobis2_3d(d, total)
+    return -0.5 * q - 0.5 * np.log(det) - 1.5 * np.log(2.0 * np.pi)
+
+
+SMALL_BATCH = 4096
+"""Below this many detection-spot-candidate triples :func:`log_gauss_spots` evaluates every one (one
+frame online); above, only those its upper bound keeps (every detection of a recording offline)."""
+
+
 def log_gauss_spots(cands: np.ndarray, cov: np.ndarray, xyz: np.ndarray, spot_cov: np.ndarray) -> np.ndarray:
     """(M, P): per detection and spot, the largest log N(c; xyz_p, C_c + spot_cov_p) over the
     detection's alias candidates ``c`` (``cands`` (M, C, 3), NaN padded, world metres) with their
     covariances ``cov`` (M, C, 3, 3) m^2; ``xyz`` (P, 3), ``spot_cov`` (P, 3, 3): the candidate that
     best explains each spot.
 
-    This runs for every detection against every place of every instance, and most pairs are metres
-    apart. An upper bound first (the largest eigenvalue of a covariance is at most its trace, and
-    det(C_c + spot_cov) >= det(C_c)); only pairs whose bound reaches ``FAR_LOG_DENSITY`` are
-    evaluated, the others keep their bound. Those are inverted in closed form (adjugate over
-    determinant of a symmetric 3 x 3): batched LAPACK solves cost several times more per tiny matrix."""
+    Offline this runs for every detection against every place of every instance, and most pairs
+    are metres apart: beyond ``SMALL_BATCH`` triples an upper bound comes first (the largest
+    eigenvalue of a covariance is at most its trace, and det(C_c + spot_cov) >= det(C_c)), and only
+    pairs whose bound reaches ``FAR_LOG_DENSITY`` are evaluated; the others keep their bound."""
     m, c = cands.shape[:2]
     p = len(xyz)
     if p == 0 or m == 0:
@@ -231,24 +257,16 @@ def log_gauss_spots(cands: np.ndarray, cov: np.ndarray, xyz: np.ndarray, spot_co
     ok = np.isfinite(cands[..., 0])                                   # (M, C)
     x = np.where(ok[..., None], cands, 0.0)
     cov = np.where(ok[..., None, None], cov, np.eye(3))
+    if m * p * c <= SMALL_BATCH:
+        ll = _log_gauss_3d(x[:, None] - xyz[None, :, None], cov[:, None] + spot_cov[None, :, None])
+        return np.where(ok[:, None, :], ll, -np.inf).max(axis=2)
     d2 = np.maximum((x * x).sum(-1)[:, None] + (xyz * xyz).sum(-1)[None, :, None]
                     - 2.0 * np.einsum("mci,pi->mpc", x, xyz), 0.0)    # (M, P, C) squared distance
     trace = np.trace(cov, axis1=-2, axis2=-1)[:, None] + np.trace(spot_cov, axis1=-2, axis2=-1)[None, :, None]
     log_norm = -0.5 * np.linalg.slogdet(cov)[1] - 1.5 * np.log(2.0 * np.pi)                # (M, C)
     ll = -0.5 * d2 / trace + log_norm[:, None]                        # the bound
-    near = ok[:, None] & (ll > FAR_LOG_DENSITY)
-    i, j, k = np.nonzero(near)
-    d = x[i, k] - xyz[j]
-    total = cov[i, k] + spot_cov[j]
-    xx, yy, zz = total[:, 0, 0], total[:, 1, 1], total[:, 2, 2]
-    xy, yz, xz = total[:, 0, 1], total[:, 1, 2], total[:, 0, 2]
-    a_xx, a_yy, a_zz = yy * zz - yz * yz, xx * zz - xz * xz, xx * yy - xy * xy
-    a_xy, a_yz, a_xz = xz * yz - xy * zz, xy * xz - xx * yz, xy * yz - yy * xz
-    det = xx * a_xx + xy * a_xy + xz * a_xz
-    dx, dy, dz = d[:, 0], d[:, 1], d[:, 2]
-    q = (dx * dx * a_xx + dy * dy * a_yy + dz * dz * a_zz
-         + 2.0 * (dx * dy * a_xy + dy * dz * a_yz + dx * dz * a_xz)) / det
-    ll[i, j, k] = -0.5 * q - 0.5 * np.log(det) - 1.5 * np.log(2.0 * np.pi)
+    i, j, k = np.nonzero(ok[:, None] & (ll > FAR_LOG_DENSITY))
+    ll[i, j, k] = _log_gauss_3d(x[i, k] - xyz[j], cov[i, k] + spot_cov[j])
     return np.where(ok[:, None, :], ll, -np.inf).max(axis=2)
 
 
@@ -256,7 +274,8 @@ def candidate_covariances(cands: np.ndarray, camera: np.ndarray, cfg: GraphConfi
     """(M, C, 3, 3) detection covariance (m^2) of every alias candidate, at its own range from the
     depth camera ``camera`` (M, 3) (:func:`egograph.track.detection_factor.detection_covariances`)."""
     m, c, _ = cands.shape
-    flat = np.nan_to_num(cands.reshape(m * c, 3), nan=0.0)
+    flat = cands.reshape(m * c, 3)
+    flat = np.where(np.isnan(flat), 0.0, flat)
     return detection_covariances(flat, np.repeat(camera, c, axis=0), cfg.noise).reshape(m, c, 3, 3)
 
 
@@ -297,12 +316,21 @@ def log_true_share(score: np.ndarray, cfg: GraphConfig) -> np.ndarray:
     return np.log(np.where(np.asarray(score, float) >= pc.confident_score, pc.true_share, pc.weak_true_share))
 
 
-def row_log_likelihoods(spots: Sequence[tuple[np.ndarray, np.ndarray, int]], k: int, cands: np.ndarray,
+def spot_arrays(places: Sequence[Place]) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Places as the spots of :func:`row_log_likelihoods`: centres (P, 3), covariances (P, 3, 3),
+    inliers (P,)."""
+    return (np.array([p.xyz for p in places], float).reshape(-1, 3),
+            np.array([p.covariance for p in places], float).reshape(-1, 3, 3),
+            np.array([p.n_inliers for p in places], float))
+
+
+def row_log_likelihoods(spots: tuple[np.ndarray, np.ndarray, np.ndarray], k: int, cands: np.ndarray,
                         cov: np.ndarray, log_true: np.ndarray, in_hand: np.ndarray, cfg: GraphConfig) -> np.ndarray:
     """(M, :func:`n_states` (k)) log-likelihood of each detection under each state.
 
-    ``spots``: (xyz, covariance, inliers) of this instance's ``k`` places first, then the other
-    instances' places (where look-alike matches gather; a spot of 0 inliers gathers none); ``cands`` (M, C, 3) alias candidates (world,
+    ``spots``: centres (P, 3), covariances (P, 3, 3) and inliers (P,) (:func:`spot_arrays`) of this
+    instance's ``k`` places first, then the other instances' places (where look-alike matches
+    gather; a spot of 0 inliers gathers none); ``cands`` (M, C, 3) alias candidates (world,
     metres, NaN padded) with covariances ``cov`` (M, C, 3, 3) m^2; ``log_true`` (M,) from
     :func:`log_true_share`; ``in_hand`` (M,) bool: seen moving with the head.
 
@@ -316,15 +344,12 @@ def row_log_likelihoods(spots: Sequence[tuple[np.ndarray, np.ndarray, int]], k: 
     m = len(log_true)
     log_false_share = np.log1p(-np.exp(log_true))
     log_rho = np.log(pc.false_density)
-    if spots:
-        at = log_gauss_spots(cands, cov, np.array([x for x, _, _ in spots], float).reshape(-1, 3),
-                             np.array([c for _, c, _ in spots], float).reshape(-1, 3, 3))
-        n = np.array([n for _, _, n in spots], float)
-    else:
-        at, n = np.zeros((m, 0)), np.zeros(0)
+    xyz, spot_cov, n = spots
+    have = len(n) > 0
+    at = log_gauss_spots(cands, cov, xyz, spot_cov) if have else np.zeros((m, 0))
     with np.errstate(divide="ignore"):
         at_w = at + np.log(n)                            # log(n_j N_j); a spot of 0 inliers gathers none
-    every = np.logaddexp.reduce(at_w, axis=1) if spots else np.full(m, -np.inf)
+    every = np.logaddexp.reduce(at_w, axis=1) if have else np.full(m, -np.inf)
     alpha = pc.false_spot_concentration
 
     def log_false(skip: int | None) -> np.ndarray:
@@ -362,9 +387,13 @@ def row_log_likelihoods(spots: Sequence[tuple[np.ndarray, np.ndarray, int]], k: 
     return out
 
 
+@functools.lru_cache(maxsize=256)
 def carry_states(k: int) -> np.ndarray:
-    """Indices of every carry state of a chain of ``k`` places."""
-    return np.array([ANY_CARRY] + [carry_state(j) for j in range(k)])
+    """Indices of every carry state of a chain of ``k`` places (read-only: cached, as the online
+    tracker asks for it every frame)."""
+    out = np.array([ANY_CARRY] + [carry_state(j) for j in range(k)])
+    out.flags.writeable = False
+    return out
 
 
 def emissions(places: Sequence[Place], others: Sequence[Place], cands: np.ndarray, cov: np.ndarray,
@@ -375,8 +404,7 @@ def emissions(places: Sequence[Place], others: Sequence[Place], cands: np.ndarra
     A frame without a detection in hand says little of where a standing object is, but a carried
     object is in front of the eyes: carry states pay ``log(1 - carry_detect_rate)`` on it."""
     k = len(places)
-    spots = [(p.xyz, p.covariance, p.n_inliers) for p in list(places) + list(others)]
-    per_row = row_log_likelihoods(spots, k, cands, cov, log_true_share(score, cfg), in_hand, cfg)
+    per_row = row_log_likelihoods(spot_arrays(list(places) + list(others)), k, cands, cov, log_true_share(score, cfg), in_hand, cfg)
     out = np.zeros((n_frames, n_states(k)))
     np.add.at(out, frames, per_row)
     held = np.zeros(n_frames, bool)
