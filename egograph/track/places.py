@@ -351,6 +351,7 @@ def row_log_likelihoods(spots: tuple[np.ndarray, np.ndarray, np.ndarray], k: int
         at_w = at + np.log(n)                            # log(n_j N_j); a spot of 0 inliers gathers none
     every = np.logaddexp.reduce(at_w, axis=1) if have else np.full(m, -np.inf)
     alpha = pc.false_spot_concentration
+    log_alike_share = np.log(pc.lookalike_share) if pc.lookalike_share > 0 else -np.inf  # 0: no look-alikes
 
     def log_false(skip: int | None) -> np.ndarray:
         """log density of a false match when the object is not at spot ``skip`` (None: at none):
@@ -364,7 +365,7 @@ def row_log_likelihoods(spots: tuple[np.ndarray, np.ndarray, np.ndarray], k: int
             total = n.sum() - n[skip]
         alike = np.logaddexp(spot, np.log(alpha) + log_rho) - np.log(total + alpha)
         return log_false_share + np.logaddexp(np.log1p(-pc.lookalike_share) + log_rho,
-                                              np.log(pc.lookalike_share) + alike)
+                                              log_alike_share + alike)
 
     out = np.empty((m, n_states(k)))
     elsewhere = log_false(None)
@@ -381,7 +382,7 @@ def row_log_likelihoods(spots: tuple[np.ndarray, np.ndarray, np.ndarray], k: int
         total = np.where(nk == 0, n.sum(), n.sum() - nk)
         alike = np.logaddexp(spot, np.log(alpha) + log_rho) - np.log(total + alpha)[None]
         false_k = log_false_share[:, None] + np.logaddexp(np.log1p(-pc.lookalike_share) + log_rho,
-                                                          np.log(pc.lookalike_share) + alike)
+                                                          log_alike_share + alike)
         out[:, [stand_state(j) for j in range(k)]] = np.logaddexp(log_true[:, None] + at[:, :k], false_k)
         out[:, [carry_state(j) for j in range(k)]] = carried[:, None]
     return out
