@@ -24,6 +24,7 @@ from egograph.track.places import (
     transitions,
     unseen_moves_at_crossing,
 )
+from egograph.track.segments import make_segment
 
 CFG = GraphConfig(negative_evidence=False)
 
@@ -79,7 +80,8 @@ def test_a_place_pools_visits_split_by_motion_breaks():
                             place + 0.01 * rng.standard_normal((5, 3)), place + 0.01 * rng.standard_normal((8, 3))])
     camera = np.tile([0.0, 1.6, 0.0], (len(world), 1))
     cov = detection_covariances(world, camera, CFG.noise)
-    segments = [np.arange(0, 6), np.array([6]), np.arange(7, 12), np.arange(12, 20)]
+    segments = [make_segment(rows, world, cov, CFG)
+                for rows in (np.arange(0, 6), np.array([6]), np.arange(7, 12), np.arange(12, 20))]
     places = candidate_places(segments, world, cov, camera, np.linalg.norm(world - camera, axis=1),
                               np.arange(len(world)) * 10, CFG)
     assert len(places) == 1

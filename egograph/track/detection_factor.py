@@ -44,22 +44,26 @@ def detection_covariances(world: np.ndarray, camera: np.ndarray, cfg: DetectionN
     return cov
 
 
-def robust(base: gtsam.noiseModel.Base, kernel: str, width: float) -> gtsam.noiseModel.Base:
-    """Wrap a noise model in the named m-estimator (``none`` keeps it Gaussian)."""
+def m_estimator(kernel: str, width: float):
+    """The named GTSAM m-estimator of ``width``, or None for ``none`` (Gaussian)."""
     if kernel == "none":
-        return base
+        return None
     if kernel not in ESTIMATORS:
         raise ValueError(f"unknown robust kernel {kernel!r}; choose one of {', '.join(KERNELS)}")
-    return gtsam.noiseModel.Robust.Create(ESTIMATORS[kernel].Create(width), base)
+    return ESTIMATORS[kernel].Create(width)
+
+
+def robust(base: gtsam.noiseModel.Base, kernel: str, width: float) -> gtsam.noiseModel.Base:
+    """Wrap a noise model in the named m-estimator (``none`` keeps it Gaussian)."""
+    estimator = m_estimator(kernel, width)
+    return base if estimator is None else gtsam.noiseModel.Robust.Create(estimator, base)
 
 
 def add_detection_factors(graph: gtsam.NonlinearFactorGraph, keys: np.ndarray, world: np.ndarray,
                           covariances: np.ndarray, cfg: DetectionNoiseConfig) -> None:
     """One robust ``PriorFactorPoint3`` per row: landmark ``keys[j]`` observed at ``world[j]``."""
-    if cfg.kernel != "none" and cfg.kernel not in ESTIMATORS:
-        raise ValueError(f"unknown robust kernel {cfg.kernel!r}; choose one of {', '.join(KERNELS)}")
     # One m-estimator for every row (GTSAM shares it read-only): this loop runs per detection per solve.
-    estimator = ESTIMATORS[cfg.kernel].Create(cfg.kernel_width) if cfg.kernel != "none" else None
+    estimator = m_estimator(cfg.kernel, cfg.kernel_width)
     gaussian, wrap, prior = gtsam.noiseModel.Gaussian.Covariance, gtsam.noiseModel.Robust.Create, gtsam.PriorFactorPoint3
     for key, p, cov in zip(keys.tolist(), np.asarray(world, float), covariances):
         base = gaussian(cov)

@@ -74,7 +74,7 @@ from egograph.track.segments import (
 def _track_instance_offline(instance: int, obs: Observations, t_frames: np.ndarray, cfg: GraphConfig,
                             support: SupportFn | None = None) -> InstanceSolution:
     """Offline chain solve of one instance's observations (already filtered and time-sorted): the
-    segments of the chain (``solution.segment_rows``) and its stands (``solution.segments``, what
+    segments of the chain (``solution.chain_segments``) and its stands (``solution.segments``, what
     the detection noise-scale fit reads). Places and intervals come later, across instances
     (:func:`_place_intervals`)."""
     if len(obs) == 0:
@@ -93,8 +93,7 @@ def _track_instance_offline(instance: int, obs: Observations, t_frames: np.ndarr
     sol = InstanceSolution(instance, [], switches, len(obs), int(chunk.max()) + 1)
     sol.segments = [seg for seg in segs if seg.stationary]
     sol.world, sol.cov, sol.frames = world, cov, obs.frame.astype(np.int64)
-    sol.camera, sol.range_m, sol.segment_rows, sol.score = obs.camera, obs.range_m, rows_of, obs.score
-    sol.chain_segments = segs
+    sol.camera, sol.range_m, sol.chain_segments, sol.score = obs.camera, obs.range_m, segs, obs.score
     sol.candidates = obs.candidates if obs.candidates.shape[1] > 1 else world[:, None, :]
     return sol
 
@@ -187,7 +186,7 @@ def _places_and_chains(solutions: list[InstanceSolution], t_frames: np.ndarray, 
         sol.places = kept[sol.instance]
         others = [p for j, ps in found.items() if j != sol.instance for p in ps]
         runs = place_chain(sol.places, others, sol.candidates, candidate_covariances(sol.candidates, sol.camera, cfg),
-                           sol.score, sol.frames, carried_rows(sol.segment_rows, sol.world, sol.camera, sol.range_m, cfg),
+                           sol.score, sol.frames, carried_rows([seg.rows for seg in sol.chain_segments], sol.world, sol.camera, sol.range_m, cfg),
                            len(t_frames), cfg, fps)
         sol.segments, sol.runs = [p.as_segment() for p in sol.places], runs
         sol.intervals = _place_intervals(sol, runs, t_frames, cfg, negative, reality[sol.instance])

@@ -475,7 +475,7 @@ class OnlineTracker:
                     ) -> tuple[np.ndarray, np.ndarray]:
         """Place ``j`` moved within ``merge_radius_m`` of another: one place, the stronger keeps the
         inliers of both and the better score of each state."""
-        gap = np.linalg.norm(np.array([q.xyz for q in st.places]) - st.places[j].xyz, axis=1)
+        gap = np.linalg.norm(st.place_arrays()[0] - st.places[j].xyz, axis=1)
         near = [int(i) for i in np.flatnonzero(gap <= self.cfg.merge_radius_m) if i != j]
         if not near:
             return delta, back

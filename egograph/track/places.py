@@ -41,7 +41,7 @@ import numpy as np
 
 from egograph.track.config import GraphConfig
 from egograph.track.detection_factor import detection_covariances, mahalanobis2
-from egograph.track.segments import Segment, SupportFn, make_segment, moves_with_camera, robust_point
+from egograph.track.segments import Segment, SupportFn, moves_with_camera, robust_point
 
 @dataclass(eq=False)  # identity: a place is one location, whatever its numbers
 class Place:
@@ -74,20 +74,16 @@ def _gate(world: np.ndarray, cov: np.ndarray, xyz: np.ndarray, cfg: GraphConfig)
     return mahalanobis2(world, xyz, cov) <= cfg.inlier_chi2
 
 
-def candidate_places(segments: Sequence[Segment | np.ndarray], world: np.ndarray, cov: np.ndarray,
+def candidate_places(segments: Sequence[Segment], world: np.ndarray, cov: np.ndarray,
                      camera: np.ndarray, range_m: np.ndarray, frames: np.ndarray, cfg: GraphConfig,
                      support: SupportFn | None = None) -> list[Place]:
     """An instance's places from its chain's segments (runs of chunks joined by switches that stayed
-    on: as made by :func:`egograph.track.segments.make_segment` from ``world``/``cov``, or as their
-    rows), strongest first. ``world``/``cov``: each detection after the alias re-choice and its
-    covariance (m, m^2); ``camera``, ``range_m``: where it was seen from."""
+    on, as made by :func:`egograph.track.segments.make_segment` from ``world``/``cov``), strongest
+    first. ``world``/``cov``: each detection after the alias re-choice and its covariance (m, m^2);
+    ``camera``, ``range_m``: where it was seen from."""
     pc = cfg.places
     segs = []
     for seg in segments:
-        if not isinstance(seg, Segment):
-            seg = make_segment(seg, world, cov, cfg) if len(seg) else None
-        if seg is None:
-            continue
         rows = seg.rows
         if seg.n_inliers >= pc.segment_min_inliers and not moves_with_camera(world[rows], camera[rows],
                                                                             range_m[rows], cfg):
@@ -405,7 +401,8 @@ def emissions(places: Sequence[Place], others: Sequence[Place], cands: np.ndarra
     A frame without a detection in hand says little of where a standing object is, but a carried
     object is in front of the eyes: carry states pay ``log(1 - carry_detect_rate)`` on it."""
     k = len(places)
-    per_row = row_log_likelihoods(spot_arrays(list(places) + list(others)), k, cands, cov, log_true_share(score, cfg), in_hand, cfg)
+    per_row = row_log_likelihoods(spot_arrays(list(places) + list(others)), k, cands, cov,
+                                  log_true_share(score, cfg), in_hand, cfg)
     out = np.zeros((n_frames, n_states(k)))
     np.add.at(out, frames, per_row)
     held = np.zeros(n_frames, bool)

@@ -60,8 +60,7 @@ class InstanceSolution:
     range_m: np.ndarray | None = None  # offline: per observation range from the depth camera, metres
     candidates: np.ndarray | None = None  # offline: per observation alias candidates (M, C, 3), metres
     score: np.ndarray | None = None   # offline: per observation matcher score
-    segment_rows: list | None = None  # offline: rows of every segment of the chain (before any is dropped)
-    chain_segments: list | None = None  # offline: every segment of the chain, made (aligned with segment_rows)
+    chain_segments: list | None = None  # offline: every segment of the chain, made (before any is dropped)
     places: list | None = None        # offline: the instance's places (egograph.track.places.Place)
     runs: list | None = None          # offline: the place chain's runs (egograph.track.places.PlaceRun)
 
