@@ -102,9 +102,14 @@ def test_answers_early_precisely_and_nothing_while_carried():
     # in hand: nothing, except in the carry's first chunk (0.5 s: its detections share the stand's
     # chunk, so the break is only seen at the next): at most 18 of the 60 frames
     assert sum(final[f] != [] for f in range(CARRY[0], CARRY[1])) <= 18
+    # the stands at A and B, each one interval; at the carry's start the lead may flicker between
+    # carried and A for a frame or two (the in-hand call waits for the head to move clearly,
+    # graph.online_carry_margin), which reports no stand of 0.1 s or more
     ivs = trk.intervals()
-    near = [iv for iv in ivs if min(np.linalg.norm(np.subtract(iv.xyz, p)) for p in (A, B)) < 0.03]
+    near = [iv for iv in ivs if min(np.linalg.norm(np.subtract(iv.xyz, p)) for p in (A, B)) < 0.03
+            and iv.t_end - iv.t_start >= 3 * FRAME]
     assert len(near) == 2 and sum(iv.n_observations for iv in near) >= 50
+    assert len(ivs) <= 4
 
 
 @pytest.mark.parametrize("lag_s", [0.0, 2.0])
@@ -132,10 +137,10 @@ def test_lag_buys_recall_and_keeps_precision():
     assert oks[0] <= oks[1] <= oks[2] and oks[2] > oks[0]
     for n, ok in scores:
         assert ok >= 0.95 * n
-    # a lagged answer uses later evidence: the carry is blanked from its first chunk break, and
-    # the frames before the first detection get the first stand
+    # a lagged answer uses later evidence: the carry is blanked once the head has moved clearly
+    # with it (0.2 m/s here: within 0.9 s), and the frames before the first detection get the first stand
     final = finals[2]
-    assert all(final[f] == [] for f in range(CARRY[0] + 15, CARRY[1] - 2))
+    assert all(final[f] == [] for f in range(CARRY[0] + 27, CARRY[1] - 2))
     assert final[0] and np.linalg.norm(np.subtract(final[0][0][1], A)) < 0.05
 
 
@@ -298,6 +303,33 @@ def test_an_unseen_carry_is_guessed_put_down_where_last_held(after_s):
         assert guessed == list(range(CARRY[1] + 40, 450))
         assert all(np.linalg.norm(np.subtract(now[f][0][1], put)) < 0.25 for f in guessed)
     assert now[460] and np.linalg.norm(np.subtract(now[460][0][1], put)) < 0.1  # seen again: there
+
+
+def test_a_still_head_does_not_make_a_still_object_look_in_hand():
+    """An object set down before a still head keeps its offset to the head as a hand would: with
+    lift noise of a few cm the world spread of a few detections beats their head-relative spread
+    about half the time (a coin flip). The online call asks for a clear margin
+    (graph.online_carry_margin): a still object is then almost never in hand, while an object
+    carried on a walk (0.5 m in 2 s) still is, every time."""
+    from egograph.track.segments import moves_with_camera
+    cfg = GraphConfig()
+    rng = np.random.default_rng(5)
+    head = np.array([1.0, 1.6, 1.0])
+    offset = np.array([0.3, -0.4, 0.3])
+    still, carried = [], []
+    for _ in range(300):
+        cam = head + 0.005 * rng.standard_normal((8, 3))
+        world = head + offset + 0.025 * rng.standard_normal((8, 3))
+        rng_m = np.linalg.norm(world - cam, axis=1)
+        still.append((moves_with_camera(world, cam, rng_m, cfg),
+                      moves_with_camera(world, cam, rng_m, cfg, cfg.online_carry_margin)))
+        walk = head + np.linspace(0, 0.5, 8)[:, None] * np.array([1.0, 0.0, 0.0]) + 0.005 * rng.standard_normal((8, 3))
+        world = walk + offset + 0.025 * rng.standard_normal((8, 3))
+        carried.append(moves_with_camera(world, walk, np.linalg.norm(world - walk, axis=1), cfg,
+                                         cfg.online_carry_margin))
+    coin, margin = np.mean(still, axis=0)
+    assert coin > 0.2 and margin < 0.02
+    assert np.mean(carried) > 0.98
 
 
 def test_a_place_keeps_its_newest_inliers_for_the_noise_fit():

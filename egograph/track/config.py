@@ -201,6 +201,10 @@ class GraphConfig(Checked):
                                           "as an object in hand", min=1)
     carry_spread_m: float = knob(0.03, "near detections that spread more than this (median, metres) and more than "
                                        "their offsets to the head do are an object in hand", min=0.0)
+    online_carry_margin: float = knob(2.0, "causal mode: near detections move with the head only when they spread "
+                                           "more than this many times their offsets to the head do (a still head "
+                                           "leaves the two equal up to noise: a few detections of an object just "
+                                           "put down must not count as in hand)", min=1.0)
     exclusion_radius_m: float = knob(0.15, "offline: a place of one instance within this distance of another "
                                            "instance's place with more inliers over overlapping times is that "
                                            "instance's (a look-alike confusion), metres; 0 disables", min=0.0)

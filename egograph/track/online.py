@@ -20,8 +20,9 @@ The causal form of the offline place chain (:mod:`egograph.track.places`), per i
   found within the lag answers the frames before it that the sequence spends unseen just before it.
 
 Carry evidence: a detection within ``carry_range_m`` of the camera is *in hand* when, together
-with the near detections of the last two seconds, it moves with the head
-(:func:`egograph.track.segments.moves_with_camera`). Negative evidence (``graph.negative``): when
+with the near detections of the last two seconds (of those since its place was founded, when it
+joins a young place seen only from close by), it moves with the head by a clear margin
+(:func:`egograph.track.segments.moves_with_camera`, ``online_carry_margin``). Negative evidence (``graph.negative``): when
 depth shows the answered place empty, standing there becomes ``places.empty_likelihood`` times less
 likely. The detection noise scale is fitted as the stream goes (``graph.noise.online_auto``): the
 offline fit (:mod:`egograph.track.noise_scale`) on the newest inliers of places with two or more,
@@ -149,6 +150,7 @@ class _Instance:
     created: int = 0                    # the PV frame of its first detection
     version: int = 0                    # bumped whenever a place is added, moved, merged or dropped
     arrays: tuple | None = None         # (version, centres (k, 3), covariances (k, 3, 3), inliers (k,))
+    claim: tuple | None = None          # (centre, inliers) of the place it stands at, answered (_claims)
 
     def place_arrays(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """Its places' centres (world, metres), covariances (m^2) and inlier counts, as arrays
@@ -318,6 +320,10 @@ class OnlineTracker:
             weakest = min((j for j in range(len(st.places)) if j != lead),
                           key=lambda j: (st.places[j].n, st.places[j].last_frame))
             self._forget(st, weakest)
+        lead = int(np.argmax(st.delta))
+        kind = state_kind(lead)
+        answered = kind >= 0 and self._lead_probability(st) >= self.cfg.places.min_answer_probability
+        st.claim = (st.places[kind].xyz, st.places[kind].n) if answered else None
 
     def _observe(self, inst: int, st: _Instance, frame: int, ts: int, obs: Observations, sel: np.ndarray,
                  delta: np.ndarray, back: np.ndarray) -> tuple[np.ndarray, np.ndarray, bool]:
@@ -340,7 +346,10 @@ class OnlineTracker:
         # near detections that no place seen from afar explains, moving with the head: in hand
         young = ts - HAND_WINDOW_S * TICKS_PER_SECOND
         free = np.array([j < 0 or (st.places[j].near_only and st.places[j].first_seen >= young) for j in joins], bool)
-        in_hand = self._in_hand(st, ts, world, camera, rng, free)
+        # one that joins such a place is judged on the near detections since the place was founded:
+        # an object just put down is still, and the carry before it must not outvote that
+        since = np.array([st.places[j].first_seen if j >= 0 else young for j in joins], np.int64)
+        in_hand = self._in_hand(st, ts, world, camera, rng, free, since)
         joins[in_hand] = -1
         founded = np.full(len(sel), -1)  # the place each of the others founds
         for r in np.flatnonzero((joins < 0) & ~in_hand):
@@ -432,34 +441,40 @@ class OnlineTracker:
         return best, best_c
 
     def _in_hand(self, st: _Instance, ts: int, world: np.ndarray, camera: np.ndarray, rng: np.ndarray,
-                 free: np.ndarray) -> np.ndarray:
+                 free: np.ndarray, since: np.ndarray) -> np.ndarray:
         """Per detection: one that no place explains (``free``), seen from within ``carry_range_m``
-        and, with such near detections of the last :data:`HAND_WINDOW_S` seconds, moving with the
-        head (an alias-wrapped view of a standing object also keeps its offset to the head, but its
-        other candidate fits the place)."""
+        and, with the near detections seen from ``since`` on (ticks, per detection; at most
+        :data:`HAND_WINDOW_S` seconds back), moving with the head (an alias-wrapped view of a
+        standing object also keeps its offset to the head, but its other candidate fits the place)."""
         cfg = self.cfg
         near = free & (rng <= cfg.carry_range_m)
         while st.near and ts - st.near[0][0] > HAND_WINDOW_S * TICKS_PER_SECOND:
             st.near.popleft()
         for r in np.flatnonzero(near):
             st.near.append((ts, world[r], camera[r], rng[r]))
-        if len(st.near) >= max(cfg.min_carry_observations, 2) and near.any():
-            w = np.array([x[1] for x in st.near])
-            c = np.array([x[2] for x in st.near])
-            r = np.array([x[3] for x in st.near])
-            if moves_with_camera(w, c, r, cfg):
-                return near
-        return np.zeros(len(world), bool)
+        out = np.zeros(len(world), bool)
+        if len(st.near) < max(cfg.min_carry_observations, 2) or not near.any():
+            return out
+        t = np.array([x[0] for x in st.near])
+        w = np.array([x[1] for x in st.near])
+        c = np.array([x[2] for x in st.near])
+        r = np.array([x[3] for x in st.near])
+        verdict: dict[int, bool] = {}
+        for q in np.flatnonzero(near):
+            lo = int(since[q])
+            if lo not in verdict:
+                m = t >= lo
+                verdict[lo] = bool(m.sum() >= max(cfg.min_carry_observations, 2)
+                                   and moves_with_camera(w[m], c[m], r[m], cfg, cfg.online_carry_margin))
+            out[q] = verdict[lo]
+        return out
 
     def _claims(self, inst: int) -> list[tuple[np.ndarray, int]]:
-        """(centre, inliers) of the place every other instance stands at now (its leading state):
-        two objects cannot stand in one place at once (graph.exclusion_radius_m)."""
-        out = []
-        for j, st in self.inst.items():
-            kind = state_kind(int(np.argmax(st.delta))) if j != inst else -1
-            if kind >= 0:
-                out.append((st.places[kind].xyz, st.places[kind].n))
-        return out
+        """(centre, inliers) of the place every other instance stands at now (its leading state,
+        when it would be answered: ``places.min_answer_probability``; kept by :meth:`_advance`):
+        two objects cannot stand in one place at once (graph.exclusion_radius_m); a guess among
+        equals claims nothing."""
+        return [st.claim for j, st in self.inst.items() if j != inst and st.claim is not None]
 
     def _others(self, inst: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """The other instances' places with two or more inliers, where look-alike matches gather:

@@ -116,16 +116,17 @@ def is_stand(seg: Segment, in_hand: bool, cfg: GraphConfig) -> bool:
             and not in_hand)
 
 
-def moves_with_camera(world: np.ndarray, camera: np.ndarray, range_m: np.ndarray, cfg: GraphConfig) -> bool:
+def moves_with_camera(world: np.ndarray, camera: np.ndarray, range_m: np.ndarray, cfg: GraphConfig,
+                      margin: float = 1.0) -> bool:
     """An object in hand is near the head (median range <= ``carry_range_m``) and keeps its
     offset to it while both move through the room: its world points spread (median, metres)
-    more than ``carry_spread_m`` and more than its head-relative offsets do."""
+    more than ``carry_spread_m`` and more than ``margin`` times its head-relative offsets do."""
     if np.median(range_m) > cfg.carry_range_m:
         return False
     spread_world = np.median(np.linalg.norm(world - np.median(world, axis=0), axis=1))
     rel = world - camera
     spread_rel = np.median(np.linalg.norm(rel - np.median(rel, axis=0), axis=1))
-    return bool(spread_world > cfg.carry_spread_m and spread_world > spread_rel)
+    return bool(spread_world > cfg.carry_spread_m and spread_world > margin * spread_rel)
 
 
 def segments_from_switches(chunk: np.ndarray, switches: np.ndarray, break_below: float) -> list[np.ndarray]:
