@@ -150,6 +150,8 @@ class _Instance:
     created: int = 0                    # the PV frame of its first detection
     version: int = 0                    # bumped whenever a place is added, moved, merged or dropped
     arrays: tuple | None = None         # (version, centres (k, 3), covariances (k, 3, 3), inliers (k,))
+    best: int = 1                       # its leading state now (UNSEEN_STATE before the first frame)
+    lead: float = 1.0                   # the leading state's max-marginal now (_lead_probability)
     claim: tuple | None = None          # (centre, inliers) of the place it stands at, answered (_claims)
 
     def place_arrays(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -240,7 +242,7 @@ class OnlineTracker:
         if self.cfg.noise.online_auto and self.n_observations >= self._next_fit:
             self._next_fit = self.n_observations + self.cfg.noise.online_refit_every
             self._refit_scale()
-        now = {i: self._answer(i, st, int(np.argmax(st.delta)), None, timestamp, self._lead_probability(st))
+        now = {i: self._answer(i, st, st.best, None, timestamp, st.lead)
                for i, st in self.inst.items()}
         self._emit(timestamp - self.lag_ticks)
         return [now[i] for i in sorted(now) if now[i] is not None]
@@ -320,9 +322,9 @@ class OnlineTracker:
             weakest = min((j for j in range(len(st.places)) if j != lead),
                           key=lambda j: (st.places[j].n, st.places[j].last_frame))
             self._forget(st, weakest)
-        lead = int(np.argmax(st.delta))
-        kind = state_kind(lead)
-        answered = kind >= 0 and self._lead_probability(st) >= self.cfg.places.min_answer_probability
+        st.best, st.lead = int(np.argmax(st.delta)), self._lead_probability(st)
+        kind = state_kind(st.best)
+        answered = kind >= 0 and st.lead >= self.cfg.places.min_answer_probability
         st.claim = (st.places[kind].xyz, st.places[kind].n) if answered else None
 
     def _observe(self, inst: int, st: _Instance, frame: int, ts: int, obs: Observations, sel: np.ndarray,
@@ -583,7 +585,8 @@ class OnlineTracker:
 
     @staticmethod
     def _lead_probability(st: _Instance) -> float:
-        """The leading state's share of the frame's max-product scores (its max-marginal)."""
+        """The leading state's share of the frame's max-product scores (its max-marginal); kept
+        per frame as ``st.lead`` by :meth:`_advance`."""
         return float(1.0 / np.exp(st.delta - np.max(st.delta)).sum())
 
     def _answer(self, inst: int, st: _Instance, state: int, next_kind: int | None, ts: int,
@@ -641,7 +644,7 @@ class OnlineTracker:
             for i in sorted(self.inst):
                 st = self.inst[i]
                 state, next_kind = paths[i].get(f, (None, None))
-                lead = self._lead_probability(st) if f == self.last_frame else None
+                lead = st.lead if f == self.last_frame else None
                 pred = None if state is None else self._answer(i, st, state, next_kind, ts, lead)
                 self._extend_span(i, st, state, pred, f, ts)
                 if pred is not None:
