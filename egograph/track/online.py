@@ -310,9 +310,10 @@ class OnlineTracker:
             px, _, pn = st.place_arrays()
             near = np.linalg.norm(px[:, None] - cx[None], axis=2) <= self.cfg.exclusion_radius_m
             claimed = (near & (cn[None] > pn[:, None])).any(axis=1)
-        for j, p in enumerate(st.places):
-            if claimed[j] or not self._held_up(p):
-                delta[stand_state(j)] = -np.inf  # in mid-air, or another instance's: not a place to stand
+        if self.support is not None:
+            claimed |= np.array([not self._held_up(p) for p in st.places], bool)
+        if claimed.any():  # in mid-air, or another instance's: not a place to stand
+            delta[stand_state(np.flatnonzero(claimed))] = -np.inf
         if self.negative is not None:
             self._check_negative(inst, st, frame, delta)
         st.delta = delta - np.max(delta)
