@@ -22,11 +22,11 @@ The causal form of the offline place chain (:mod:`egograph.track.places`), per i
 Carry evidence: a detection within ``carry_range_m`` of the camera is *in hand* when, together
 with the near detections of the last two seconds (of those since its place was founded, when it
 joins a young place seen only from close by), it moves with the head by a clear margin
-(:func:`egograph.track.segments.moves_with_camera`, ``online_carry_margin``). Negative evidence (``graph.negative``): when
-depth shows the answered place empty, standing there becomes ``places.empty_likelihood`` times less
-likely. The detection noise scale is fitted as the stream goes (``graph.noise.online_auto``): the
-offline fit (:mod:`egograph.track.noise_scale`) on the newest inliers of places with two or more,
-every ``online_refit_every`` detections.
+(:func:`egograph.track.segments.moves_with_camera`, ``online_carry_margin``). Negative evidence
+(``graph.negative``): when depth shows the answered place empty, standing there becomes
+``places.empty_likelihood`` times less likely. The detection noise scale is fitted as the stream
+goes (``graph.noise.online_auto``): the offline fit (:mod:`egograph.track.noise_scale`) on the
+newest inliers of places with two or more, every ``online_refit_every`` detections.
 
 Memory and time per frame are bounded: each place keeps its newest ``online_max_rows`` inliers (for
 the scale fit) and an instance at most ``online_max_places`` places (the weakest one that no recent
@@ -658,7 +658,7 @@ class OnlineTracker:
         Frames before the instance's first detection count as unseen, leading to the sequence's
         first state (a lagged answer back-fills the first place)."""
         out = {}
-        state = int(np.argmax(st.delta))
+        state = st.best
         next_kind = None
         first = None
         for f, b in reversed(st.back):
