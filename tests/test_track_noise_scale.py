@@ -21,6 +21,19 @@ def test_chi2_with_three_degrees_of_freedom():
     assert truncated_median(1.0, 1e9) == pytest.approx(2.3660, rel=1e-3)
 
 
+def test_the_inverses_solve_to_near_machine_precision():
+    # chi2_ppf (Newton inside a bracket) and fit_scale_ratio (false position) replace bisections;
+    # the online tracker calls them on every noise-scale refit and rounds the scale to 4 digits
+    for p in np.linspace(1e-6, 1 - 1e-9, 400):
+        assert chi2_cdf(chi2_ppf(p)) == pytest.approx(p, rel=1e-10, abs=1e-15)
+    gate = GraphConfig().inlier_chi2
+    for r in (0.07, 0.4, 1.0, 2.5, 14.0):
+        target = truncated_median(r, gate)
+        d2 = np.full(5, target)  # residuals whose median is exactly the model's at r
+        assert fit_scale_ratio(d2, gate) == pytest.approx(r, rel=1e-9)
+    assert fit_scale_ratio(np.full(5, gate), gate, hi=20.0) == 20.0  # no ratio in range explains it: clipped
+
+
 @pytest.mark.parametrize("r", [0.5, 1.0, 3.0])
 def test_the_fit_recovers_the_ratio_from_residuals_cut_at_the_gate(r):
     gate = GraphConfig().inlier_chi2

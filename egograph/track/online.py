@@ -87,6 +87,7 @@ class OnlinePlace:
     last_seen: int
     max_rows: int               # newest inliers kept for the noise-scale fit (graph.online_max_rows)
     xyz: np.ndarray = field(default_factory=lambda: np.zeros(3))
+    xyz_tuple: tuple = (0.0, 0.0, 0.0)
     covariance: np.ndarray = field(default_factory=lambda: np.eye(3))
     supported: tuple | None = None      # (inliers when tested, whether the scene holds it up)
     near_only: bool = False             # every inlier seen from within carry_range_m
@@ -100,6 +101,7 @@ class OnlinePlace:
     def update(self) -> None:
         self.covariance = np.linalg.inv(self.info)
         self.xyz = self.covariance @ self.info_x
+        self.xyz_tuple = tuple(self.xyz.tolist())   # as predictions carry it (answered every frame)
 
     def keep(self, world: np.ndarray, info: np.ndarray) -> None:
         """Keep one inlier for the noise-scale fit (the oldest goes beyond ``max_rows``)."""
@@ -152,7 +154,9 @@ class _Instance:
     arrays: tuple | None = None         # (version, centres (k, 3), covariances (k, 3, 3), inliers (k,))
     best: int = 1                       # its leading state now (UNSEEN_STATE before the first frame)
     lead: float = 1.0                   # the leading state's max-marginal now (_lead_probability)
-    claim: tuple | None = None          # (centre, inliers) of the place it stands at, answered (_claims)
+    claim: tuple | None = None          # (centre, inliers) of the place it stands at, answered (_claim)
+    claimed: tuple | None = None        # (version, claims version, places claimed) (_claimed)
+    kept_spots: tuple | None = None     # (version, centres, covariances, inliers) of places of n >= 2 (spots)
 
     def place_arrays(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """Its places' centres (world, metres), covariances (m^2) and inlier counts, as arrays
@@ -163,6 +167,25 @@ class _Instance:
                            np.array([p.covariance for p in self.places], float).reshape(-1, 3, 3),
                            np.array([p.n for p in self.places], float))
         return self.arrays[1:]
+
+    def moved(self, j: int) -> None:
+        """Place ``j`` gained an inlier: a new version, its row of the arrays refreshed in place."""
+        fresh = self.arrays is not None and self.arrays[0] == self.version
+        self.version += 1
+        if fresh:
+            _, xyz, cov, n = self.arrays
+            p = self.places[j]
+            xyz[j], cov[j], n[j] = p.xyz, p.covariance, p.n
+            self.arrays = (self.version, xyz, cov, n)
+
+    def spots(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Its places with two or more inliers, where look-alike matches of other instances gather:
+        centres (P, 3), covariances (P, 3, 3), inliers (P,)."""
+        if self.kept_spots is None or self.kept_spots[0] != self.version:
+            xyz, cov, n = self.place_arrays()
+            keep = n >= 2
+            self.kept_spots = (self.version, xyz[keep], cov[keep], n[keep])
+        return self.kept_spots[1:]
 
 
 def alias_candidates(obs: Observations, sel: np.ndarray) -> np.ndarray:
@@ -210,8 +233,12 @@ class OnlineTracker:
         self._noise = dataclasses.replace(cfg.noise, scale=self.scale)
         self._cfg_scaled = dataclasses.replace(cfg, noise=self._noise)
         self._next_fit = cfg.noise.online_refit_every
-        self._trans: dict[tuple[int, float], tuple[np.ndarray, np.ndarray]] = {}
+        self._trans: dict[tuple[int, float], np.ndarray] = {}
         self._keep_back = max(2, int(np.ceil(self.lag_ticks / TICKS_PER_SECOND * 60.0)) + 2)
+        # every instance's claim (_claim): centre (world, metres), inliers, whether it stands anywhere
+        self._claim_xyz, self._claim_n, self._claim_on = np.zeros((0, 3)), np.zeros(0), np.zeros(0, bool)
+        self._claim_row: dict[int, int] = {}
+        self._claims_version = 0
 
     # ------------------------------------------------------------------ the loop
 
@@ -244,7 +271,7 @@ class OnlineTracker:
             self._refit_scale()
         now = {i: self._answer(i, st, st.best, None, timestamp, st.lead)
                for i, st in self.inst.items()}
-        self._emit(timestamp - self.lag_ticks)
+        self._emit(timestamp - self.lag_ticks, now)
         return [now[i] for i in sorted(now) if now[i] is not None]
 
     def collect(self) -> list[tuple[int, int, list[Prediction]]]:
@@ -286,12 +313,13 @@ class OnlineTracker:
                          hand_rows=deque(maxlen=3), created=frame)
 
     def _transitions(self, k: int) -> np.ndarray:
+        """Log transitions into each state of ``k`` places (to, from), as :func:`viterbi_step` takes them."""
         key = (k, round(self.fps, 1))
         if key not in self._trans:
             if len(self._trans) > 256:
                 self._trans.clear()
-            self._trans[key] = transitions(k, self.cfg, self.fps)
-        return self._trans[key][0]
+            self._trans[key] = np.ascontiguousarray(transitions(k, self.cfg, self.fps)[0].T)
+        return self._trans[key]
 
     def _advance(self, inst: int, st: _Instance, frame: int, ts: int, obs: Observations | None,
                  sel: np.ndarray | None) -> None:
@@ -302,31 +330,27 @@ class OnlineTracker:
             delta, back, held_now = self._observe(inst, st, frame, ts, obs, sel, delta, back)
         if not held_now:
             delta[carry_states(len(st.places))] += np.log1p(-self.cfg.places.carry_detect_rate)
-        claims = self._claims(inst)
-        claimed = np.zeros(len(st.places), bool)
-        if claims and st.places:  # another instance holds a place within exclusion_radius_m with more inliers
-            cx = np.array([xyz for xyz, _ in claims], float).reshape(-1, 3)
-            cn = np.array([n for _, n in claims], float)
-            px, _, pn = st.place_arrays()
-            near = np.linalg.norm(px[:, None] - cx[None], axis=2) <= self.cfg.exclusion_radius_m
-            claimed = (near & (cn[None] > pn[:, None])).any(axis=1)
+        claimed = self._claimed(inst, st)
         if self.support is not None:
-            claimed |= np.array([not self._held_up(p) for p in st.places], bool)
+            claimed = claimed | np.array([not self._held_up(p) for p in st.places], bool)
         if claimed.any():  # in mid-air, or another instance's: not a place to stand
             delta[stand_state(np.flatnonzero(claimed))] = -np.inf
         if self.negative is not None:
             self._check_negative(inst, st, frame, delta)
-        st.delta = delta - np.max(delta)
+        best = int(np.argmax(delta))
+        st.delta = delta - delta[best]
         st.back.append((frame, back.astype(np.int32)))
         while len(st.places) > self.cfg.online_max_places:
             lead = state_kind(int(np.argmax(st.delta)))
             weakest = min((j for j in range(len(st.places)) if j != lead),
                           key=lambda j: (st.places[j].n, st.places[j].last_frame))
             self._forget(st, weakest)
-        st.best, st.lead = int(np.argmax(st.delta)), self._lead_probability(st)
+            best = int(np.argmax(st.delta))
+        st.best = best
+        st.lead = self._lead_probability(st)
         kind = state_kind(st.best)
         answered = kind >= 0 and st.lead >= self.cfg.places.min_answer_probability
-        st.claim = (st.places[kind].xyz, st.places[kind].n) if answered else None
+        self._claim(inst, st, (st.places[kind].xyz, st.places[kind].n) if answered else None)
 
     def _observe(self, inst: int, st: _Instance, frame: int, ts: int, obs: Observations, sel: np.ndarray,
                  delta: np.ndarray, back: np.ndarray) -> tuple[np.ndarray, np.ndarray, bool]:
@@ -366,10 +390,10 @@ class OnlineTracker:
         new = set(int(j) for j in founded if j >= 0)
         own_xyz, own_cov, own_n = st.place_arrays()
         own_n = own_n.copy()
-        own_n[sorted(new)] = 0
-        others = self._others(inst)
-        spots = (np.concatenate([own_xyz, others[0]]), np.concatenate([own_cov, others[1]]),
-                 np.concatenate([own_n, others[2]]))
+        if new:
+            own_n[sorted(new)] = 0
+        parts = [(own_xyz, own_cov, own_n)] + [o.spots() for j, o in self.inst.items() if j != inst]
+        spots = tuple(np.concatenate(a) for a in zip(*parts))  # own places, then others' (_Instance.spots)
         ll = row_log_likelihoods(spots, k, cands, cand_cov, log_true, in_hand, cfg)
         for r in range(len(sel)):
             if founded[r] >= 0:  # the founding detection: prior predictive under its own place
@@ -380,7 +404,7 @@ class OnlineTracker:
         info = np.linalg.inv(cand_cov[joined, chosen[joined]])  # each at the candidate it took
         for r, inf in zip(joined, info):
             st.places[int(joins[r])].add(world[r], inf, frame, ts, bool(rng[r] <= cfg.carry_range_m))
-        st.version += 1
+            st.moved(int(joins[r]))
         for r in np.flatnonzero(founded >= 0):
             st.places[int(founded[r])].near_only = bool(rng[r] <= cfg.carry_range_m)
         for j in sorted({int(v) for v in joins if v >= 0}, reverse=True):
@@ -427,21 +451,28 @@ class OnlineTracker:
         """(place, alias candidate) of the place whose inlier gate one of a detection's candidates
         ``cands`` (C, 3) falls in, or that lies within ``merge_radius_m`` of it, the closest in the
         Mahalanobis sense; (-1, -1) when none."""
-        ok = np.flatnonzero(np.isfinite(cands[:, 0]))
-        if not st.places or len(ok) == 0:
+        if not st.places:
             return -1, -1
+        finite = np.isfinite(cands[:, 0])
+        ok = None if finite.all() else np.flatnonzero(finite)                  # None: every candidate
+        if ok is not None:
+            if len(ok) == 0:
+                return -1, -1
+            cands, cand_cov = cands[ok], cand_cov[ok]
         px, pc, _ = st.place_arrays()                                          # (P, 3), (P, 3, 3)
-        d = cands[ok][None] - px[:, None]                                      # (P, C, 3)
-        d2 = mahalanobis2_3d(d, cand_cov[ok][None] + pc[:, None])[0]
-        c = np.argmin(d2, axis=1)                                              # each place's best candidate
-        rows = np.arange(len(px))
-        best_d2 = d2[rows, c]
-        fits = (best_d2 <= self.cfg.inlier_chi2) | (np.linalg.norm(d[rows, c], axis=1) <= self.cfg.merge_radius_m)
+        d = cands[None] - px[:, None]                                          # (P, C, 3)
+        d2 = mahalanobis2_3d(d, cand_cov[None] + pc[:, None])[0]
+        if len(cands) == 1:                                                    # one candidate: no alias
+            c, best_d2, dc = np.zeros(len(px), int), d2[:, 0], d[:, 0]
+        else:
+            c = np.argmin(d2, axis=1)                                          # each place's best candidate
+            rows = np.arange(len(px))
+            best_d2, dc = d2[rows, c], d[rows, c]
+        fits = (best_d2 <= self.cfg.inlier_chi2) | (np.sqrt((dc * dc).sum(axis=1)) <= self.cfg.merge_radius_m)
         if not fits.any():
             return -1, -1
-        j = int(np.flatnonzero(fits)[np.argmin(best_d2[fits])])               # first of equals, as a loop would
-        best, best_c = j, int(ok[c[j]])
-        return best, best_c
+        j = int(np.argmin(np.where(fits, best_d2, np.inf)))                  # first of equals, as a loop would
+        return j, int(c[j] if ok is None else ok[c[j]])
 
     def _in_hand(self, st: _Instance, ts: int, world: np.ndarray, camera: np.ndarray, rng: np.ndarray,
                  free: np.ndarray, since: np.ndarray) -> np.ndarray:
@@ -472,28 +503,52 @@ class OnlineTracker:
             out[q] = verdict[lo]
         return out
 
-    def _claims(self, inst: int) -> list[tuple[np.ndarray, int]]:
-        """(centre, inliers) of the place every other instance stands at now (its leading state,
-        when it would be answered: ``places.min_answer_probability``; kept by :meth:`_advance`):
-        two objects cannot stand in one place at once (graph.exclusion_radius_m); a guess among
-        equals claims nothing."""
-        return [st.claim for j, st in self.inst.items() if j != inst and st.claim is not None]
+    def _claimed(self, inst: int, st: _Instance) -> np.ndarray:
+        """Per place of ``st``: another instance stands there now, within ``exclusion_radius_m``
+        and with more inliers (two objects cannot stand in one place at once). An instance stands
+        at its leading state's place when that would be answered (``places.min_answer_probability``;
+        a guess among equals claims nothing); the claims are kept in arrays by :meth:`_claim`, and
+        the answer until its places or any claim change."""
+        memo = st.claimed
+        if memo is not None and memo[0] == st.version and memo[1] == self._claims_version:
+            return memo[2]
+        on = self._claim_on.copy()
+        if inst in self._claim_row:
+            on[self._claim_row[inst]] = False
+        claimed = np.zeros(len(st.places), bool)
+        if st.places and on.any():
+            cx, cn = self._claim_xyz[on], self._claim_n[on]
+            px, _, pn = st.place_arrays()
+            d = px[:, None] - cx[None]
+            near = np.sqrt((d * d).sum(axis=2)) <= self.cfg.exclusion_radius_m  # np.linalg.norm, without its checks
+            claimed = (near & (cn[None] > pn[:, None])).any(axis=1)
+        claimed.flags.writeable = False
+        st.claimed = (st.version, self._claims_version, claimed)
+        return claimed
 
-    def _others(self, inst: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """The other instances' places with two or more inliers, where look-alike matches gather:
-        centres (P, 3), covariances (P, 3, 3), inliers (P,)."""
-        parts = [st.place_arrays() for j, st in self.inst.items() if j != inst]
-        if not parts:
-            return np.zeros((0, 3)), np.zeros((0, 3, 3)), np.zeros(0)
-        xyz, cov, n = (np.concatenate(a) for a in zip(*parts))
-        keep = n >= 2
-        return xyz[keep], cov[keep], n[keep]
+    def _claim(self, inst: int, st: _Instance, claim: tuple | None) -> None:
+        """Instance ``inst`` now stands at ``claim`` (centre, inliers) or at no answered place (None)."""
+        old = st.claim
+        st.claim = claim
+        if (old is None) == (claim is None) and (claim is None or (old[0] is claim[0] and old[1] == claim[1])):
+            return
+        if inst not in self._claim_row:
+            self._claim_row[inst] = len(self._claim_on)
+            self._claim_xyz = np.concatenate([self._claim_xyz, np.zeros((1, 3))])
+            self._claim_n = np.concatenate([self._claim_n, [0.0]])
+            self._claim_on = np.concatenate([self._claim_on, [False]])
+        row = self._claim_row[inst]
+        self._claim_on[row] = claim is not None
+        if claim is not None:
+            self._claim_xyz[row], self._claim_n[row] = claim
+        self._claims_version += 1
 
     def _merge_into(self, st: _Instance, j: int, delta: np.ndarray, back: np.ndarray
                     ) -> tuple[np.ndarray, np.ndarray]:
         """Place ``j`` moved within ``merge_radius_m`` of another: one place, the stronger keeps the
         inliers of both and the better score of each state."""
-        gap = np.linalg.norm(st.place_arrays()[0] - st.places[j].xyz, axis=1)
+        d = st.place_arrays()[0] - st.places[j].xyz
+        gap = np.sqrt((d * d).sum(axis=1))  # np.linalg.norm, without its checks
         near = [int(i) for i in np.flatnonzero(gap <= self.cfg.merge_radius_m) if i != j]
         if not near:
             return delta, back
@@ -588,7 +643,7 @@ class OnlineTracker:
     def _lead_probability(st: _Instance) -> float:
         """The leading state's share of the frame's max-product scores (its max-marginal); kept
         per frame as ``st.lead`` by :meth:`_advance`."""
-        return float(1.0 / np.exp(st.delta - np.max(st.delta)).sum())
+        return float(1.0 / np.exp(st.delta - st.delta[st.best]).sum())
 
     def _answer(self, inst: int, st: _Instance, state: int, next_kind: int | None, ts: int,
                 lead: float | None = None) -> Prediction | None:
@@ -619,7 +674,7 @@ class OnlineTracker:
         by its support (inliers n: n / (n + 5)) when answered with a lag."""
         p = st.places[k]
         score = lead if lead is not None else p.n / (p.n + 5.0)
-        return Prediction(inst, tuple(float(v) for v in p.xyz), float(score))
+        return Prediction(inst, p.xyz_tuple, float(score))
 
     def _held_up(self, p: OnlinePlace) -> bool:
         """Whether the object could stand at place ``p``: a place of fewer than
@@ -631,22 +686,29 @@ class OnlineTracker:
             p.supported = (p.n, bool(self.support(p.xyz)))
         return p.supported[1]
 
-    def _emit(self, up_to: int | None) -> None:
+    def _emit(self, up_to: int | None, now: dict[int, Prediction | None] | None = None) -> None:
         """Emit pending frames with timestamp <= ``up_to`` (None: all): each instance's state there
-        on the most probable sequence up to now."""
+        on the most probable sequence up to now. ``now``: the newest frame's answers, when made
+        already (the sequence ends in each instance's leading state, so they are its answers)."""
         due = []
         while self.pending and (up_to is None or self.pending[0][1] <= up_to):
             due.append(self.pending.popleft())
         if not due:
             return
-        paths = {i: self._backtrack(st, due[0][0]) for i, st in self.inst.items()}
+        if now is not None and len(due) == 1 and due[0][0] == self.last_frame:  # no lag: the leading states
+            paths = {i: {self.last_frame: (st.best, None)} for i, st in self.inst.items()}
+        else:
+            paths = {i: self._backtrack(st, due[0][0]) for i, st in self.inst.items()}
         for f, ts in due:
             preds = []
             for i in sorted(self.inst):
                 st = self.inst[i]
                 state, next_kind = paths[i].get(f, (None, None))
-                lead = st.lead if f == self.last_frame else None
-                pred = None if state is None else self._answer(i, st, state, next_kind, ts, lead)
+                if f == self.last_frame and now is not None:
+                    pred = now[i]
+                else:
+                    lead = st.lead if f == self.last_frame else None
+                    pred = None if state is None else self._answer(i, st, state, next_kind, ts, lead)
                 self._extend_span(i, st, state, pred, f, ts)
                 if pred is not None:
                     preds.append(pred)

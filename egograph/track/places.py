@@ -251,11 +251,12 @@ def log_gauss_spots(cands: np.ndarray, cov: np.ndarray, xyz: np.ndarray, spot_co
     if p == 0 or m == 0:
         return np.full((m, p), -np.inf)
     ok = np.isfinite(cands[..., 0])                                   # (M, C)
-    x = np.where(ok[..., None], cands, 0.0)
-    cov = np.where(ok[..., None, None], cov, np.eye(3))
+    every = bool(ok.all())                                            # no padding (one frame online, mostly)
+    x = cands if every else np.where(ok[..., None], cands, 0.0)
+    cov = cov if every else np.where(ok[..., None, None], cov, np.eye(3))
     if m * p * c <= SMALL_BATCH:
         ll = _log_gauss_3d(x[:, None] - xyz[None, :, None], cov[:, None] + spot_cov[None, :, None])
-        return np.where(ok[:, None, :], ll, -np.inf).max(axis=2)
+        return (ll if every else np.where(ok[:, None, :], ll, -np.inf)).max(axis=2)
     d2 = np.maximum((x * x).sum(-1)[:, None] + (xyz * xyz).sum(-1)[None, :, None]
                     - 2.0 * np.einsum("mci,pi->mpc", x, xyz), 0.0)    # (M, P, C) squared distance
     trace = np.trace(cov, axis1=-2, axis2=-1)[:, None] + np.trace(spot_cov, axis1=-2, axis2=-1)[None, :, None]
@@ -336,6 +337,13 @@ def row_log_likelihoods(spots: tuple[np.ndarray, np.ndarray, np.ndarray], k: int
     of the spots, in proportion to its inliers, or at a new spot (weight
     ``false_spot_concentration``), the rest anywhere (``false_density``). Under UNSEEN a detection
     is a false match."""
+    with np.errstate(divide="ignore", invalid="ignore"):  # log(0) = -inf is meant: a spot of 0 inliers, no hand
+        return _row_log_likelihoods(spots, k, cands, cov, log_true, in_hand, cfg)
+
+
+def _row_log_likelihoods(spots, k, cands, cov, log_true, in_hand, cfg):
+    """:func:`row_log_likelihoods`, under its error state (one per call: the online tracker calls it
+    per detection, and each ``np.errstate`` costs as much as a small array operation)."""
     pc = cfg.places
     m = len(log_true)
     log_false_share = np.log1p(-np.exp(log_true))
@@ -343,8 +351,7 @@ def row_log_likelihoods(spots: tuple[np.ndarray, np.ndarray, np.ndarray], k: int
     xyz, spot_cov, n = spots
     have = len(n) > 0
     at = log_gauss_spots(cands, cov, xyz, spot_cov) if have else np.zeros((m, 0))
-    with np.errstate(divide="ignore"):
-        at_w = at + np.log(n)                            # log(n_j N_j); a spot of 0 inliers gathers none
+    at_w = at + np.log(n)                                # log(n_j N_j); a spot of 0 inliers gathers none
     every = np.logaddexp.reduce(at_w, axis=1) if have else np.full(m, -np.inf)
     alpha = pc.false_spot_concentration
     log_alike_share = np.log(pc.lookalike_share) if pc.lookalike_share > 0 else -np.inf  # 0: no look-alikes
@@ -356,8 +363,7 @@ def row_log_likelihoods(spots: tuple[np.ndarray, np.ndarray, np.ndarray], k: int
         if skip is None or n[skip] == 0:
             spot, total = every, n.sum()
         else:
-            with np.errstate(divide="ignore", invalid="ignore"):
-                spot = every + np.log1p(-np.minimum(np.exp(at_w[:, skip] - every), 1.0))
+            spot = every + np.log1p(-np.minimum(np.exp(at_w[:, skip] - every), 1.0))
             total = n.sum() - n[skip]
         alike = np.logaddexp(spot, np.log(alpha) + log_rho) - np.log(total + alpha)
         return log_false_share + np.logaddexp(np.log1p(-pc.lookalike_share) + log_rho,
@@ -365,22 +371,20 @@ def row_log_likelihoods(spots: tuple[np.ndarray, np.ndarray, np.ndarray], k: int
 
     out = np.empty((m, n_states(k)))
     elsewhere = log_false(None)
-    with np.errstate(divide="ignore"):
-        hand = np.where(in_hand, np.log(pc.carry_density), -np.inf)
+    hand = np.where(in_hand, np.log(pc.carry_density), -np.inf)
     carried = np.logaddexp(log_true + hand, elsewhere)
     out[:, ANY_CARRY] = carried
     out[:, UNSEEN_STATE] = elsewhere
     if k:  # log_false(j) for every own place at once (the same sums, broadcast over j)
         nk = n[:k]
-        with np.errstate(divide="ignore", invalid="ignore"):
-            spot = every[:, None] + np.log1p(-np.minimum(np.exp(at_w[:, :k] - every[:, None]), 1.0))
+        spot = every[:, None] + np.log1p(-np.minimum(np.exp(at_w[:, :k] - every[:, None]), 1.0))
         spot = np.where(nk[None] == 0, every[:, None], spot)
         total = np.where(nk == 0, n.sum(), n.sum() - nk)
         alike = np.logaddexp(spot, np.log(alpha) + log_rho) - np.log(total + alpha)[None]
         false_k = log_false_share[:, None] + np.logaddexp(np.log1p(-pc.lookalike_share) + log_rho,
                                                           log_alike_share + alike)
-        out[:, [stand_state(j) for j in range(k)]] = np.logaddexp(log_true[:, None] + at[:, :k], false_k)
-        out[:, [carry_state(j) for j in range(k)]] = carried[:, None]
+        out[:, stand_state(0)::2] = np.logaddexp(log_true[:, None] + at[:, :k], false_k)  # stand_state(j)
+        out[:, carry_state(0)::2] = carried[:, None]                                      # carry_state(j)
     return out
 
 
@@ -453,12 +457,14 @@ def transitions(k: int, cfg: GraphConfig, fps: float) -> tuple[np.ndarray, np.nd
         return np.log(a), np.log(prior)
 
 
-def viterbi_step(v: np.ndarray, log_a: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+def viterbi_step(v: np.ndarray, log_a_into: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """One max-product step of the chain: from the best log score of each state ``v`` (..., S) and
-    the log transitions ``log_a`` (..., from, to), the best score of reaching each state (before its
-    emission) and the state it comes from (ties to the lower index). Leading axes are a batch."""
-    m = v[..., :, None] + log_a
-    return m.max(axis=-2), np.argmax(m, axis=-2)
+    the log transitions *into* each state ``log_a_into`` (..., to, from: the transpose of
+    :func:`transitions`' matrix, C order, so that each maximum runs along memory), the best score of
+    reaching each state (before its emission) and the state it comes from (ties to the lower
+    index). Leading axes are a batch."""
+    m = log_a_into + v[..., None, :]
+    return m.max(axis=-1), np.argmax(m, axis=-1)
 
 
 def _chain_arrays(log_e: np.ndarray, log_a: np.ndarray, log_prior: np.ndarray
