@@ -14,7 +14,8 @@ against lag, and the online API's per-frame latency.
 3. Per-frame latency of :class:`egograph.track.online.OnlineTracker` on a synthetic stream of
    observations (no rendering) of ``--instances`` objects: median and p99 of ``step()`` over
    the stream, and flatness: median step time and resident memory in the first and last tenth
-   of the stream. Use seeds apart from those the defaults were tuned on (1, 2, 3).
+   of the stream. Use seeds apart from those the defaults were tuned on (1, 2, 3). A
+   ``--latency-only`` run writes its own record (``docs/bench/bench_causal-latency.json``).
 """
 
 from __future__ import annotations
@@ -282,6 +283,8 @@ def main() -> None:
     ap.add_argument("--plot", type=Path, help="PNG of recall at 0.25 m against lag")
     benchdoc.add_arguments(ap, __file__)
     args = ap.parse_args()
+    if args.latency_only and not args.json and not args.json_tag:
+        args.json_tag = "latency"  # its own record: the accuracy record stays as it was
     benchdoc.start(__file__, args)
     if not args.latency_only:
         accuracy(args.seeds, args.frames, args.cache, args.lags, args.overrides, args.plot,

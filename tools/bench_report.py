@@ -78,6 +78,13 @@ SECTIONS: tuple[Section, ...] = (
             "ceiling on held-out recordings 301-306, robust lifting, pooled: issue 29's causal targets and the lag "
             "at which the causal answer reaches 95 % of the offline recall at 0.25 m.",
             f"{PY} tools/bench_causal.py --seeds $(seq 301 306) --frames 3000 --no-latency --json-tag heldout6"),
+    Section("bench_causal-latency", "Online API latency",
+            "The per-frame latency of the online API (`OnlineTracker.step` + `collect`, lag 0) over a 20,000-frame "
+            "synthetic stream of 8 instances (no rendering: lifted observations, each object seen on about a third "
+            "of the frames, 3 % false matches, a carry every ~40 s): median, p99 and maximum over all frames and "
+            "the first and last tenth (growth over the stream), wall and CPU time, resident memory. Compare "
+            "revisions by running the same command from each checkout in one window: the machine is shared.",
+            f"{PY} tools/bench_causal.py --latency-only --stream-frames 20000 --json-tag latency"),
     Section("bench_causal-fixed-scale", "Causal tracking without the online noise-scale fit",
             "The same as above with the detection sigmas as configured (`graph.noise.online_auto=false`).",
             f"{PY} tools/bench_causal.py --seeds {HELD_OUT_12} --frames 3000 --no-latency "
