@@ -193,3 +193,32 @@ def test_the_posterior_is_the_log_space_one_on_a_long_chain_with_forbidden_moves
     slow = np.exp(g - np.logaddexp.reduce(g, axis=1)[:, None])
     fast = posterior(log_e, log_a, log_prior)
     assert np.allclose(fast, slow, atol=1e-9) and np.allclose(fast.sum(axis=1), 1.0)
+
+def test_the_fast_geometry_helpers_give_numpys_bits():
+    """The online tracker's closed-form Mahalanobis length and its one-sort median replace numpy's
+    general routines on its hot path; answers must not move by a bit (the tracker's tie-breaks and
+    records depend on them)."""
+    from egograph.track.places import mahalanobis2_3d
+    from egograph.track.segments import median0
+
+    rng = np.random.default_rng(3)
+    a = rng.normal(size=(40, 5, 3, 3))
+    total = a @ np.swapaxes(a, -1, -2) + 0.1 * np.eye(3)
+    d = rng.normal(size=(40, 5, 3))
+    q, det = mahalanobis2_3d(d, total)
+    assert q.shape == det.shape == (40, 5)
+    np.testing.assert_allclose(q, np.einsum("...i,...i->...", d, np.linalg.solve(total, d[..., None])[..., 0]),
+                               rtol=1e-9)
+    np.testing.assert_allclose(det, np.linalg.det(total), rtol=1e-9)
+    q1, _ = mahalanobis2_3d(d[:, :1], total[:1, :1])  # broadcast against one covariance
+    np.testing.assert_allclose(q1[:, 0], np.einsum("mi,mi->m", d[:, 0], np.linalg.solve(total[0, 0], d[:, 0].T).T),
+                               rtol=1e-9)
+    for n in (1, 2, 7, 8, 33):
+        for dtype in (np.float64, np.float32):
+            x = rng.normal(size=(n, 3)).astype(dtype)
+            x[n // 2] = x[0]  # ties
+            for arr in (x, x[:, 0]):
+                got, want = median0(arr), np.median(arr, axis=0)
+                assert np.asarray(got).dtype == np.asarray(want).dtype
+                assert np.array_equal(got, want)
+    assert np.isnan(median0(np.array([1.0, np.nan, 2.0])))
