@@ -52,7 +52,7 @@ from egograph.core.types import PositionInterval, Prediction
 from egograph.core.units import TICKS_PER_SECOND
 from egograph.geometry.observations import Observations
 from egograph.track.config import GraphConfig
-from egograph.track.noise_scale import centred, refit
+from egograph.track.noise_scale import refit
 from egograph.track.places import (
     ANY_CARRY,
     UNSEEN_STATE,
@@ -617,14 +617,17 @@ class OnlineTracker:
     def _refit_scale(self) -> None:
         """The offline scale fit on the newest inliers of every place with two or more; a change of
         at least 5 % rescales every place (its inliers' information)."""
-        d2 = []
-        for st in self.inst.values():
-            for p in st.places:
-                if p.n >= 2 and p.n_kept >= 2:
-                    w, info = p.kept()
-                    d = w - p.xyz
-                    d2.append(centred(np.einsum("mi,mij,mj->m", d, info, d)))
-        new = refit(np.concatenate(d2) if d2 else np.zeros(0), self.scale, self.cfg.noise, self.cfg.inlier_chi2)
+        # every place's kept inliers at once (a refit every few dozen detections made the p99 when it
+        # went place by place): squared Mahalanobis distances to their centre, times n / (n - 1) (noise_scale.centred)
+        fit = [p for st in self.inst.values() for p in st.places if p.n >= 2 and p.n_kept >= 2]
+        d2 = np.zeros(0)
+        if fit:
+            kept = np.array([p.n_kept for p in fit])
+            d = (np.concatenate([p.row_world[:p.n_kept] for p in fit])
+                 - np.repeat(np.array([p.xyz for p in fit]), kept, axis=0))
+            info = np.concatenate([p.row_info[:p.n_kept] for p in fit])
+            d2 = np.einsum("mi,mij,mj->m", d, info, d) * np.repeat(kept / (kept - 1), kept)
+        new = refit(d2, self.scale, self.cfg.noise, self.cfg.inlier_chi2)
         if new is None:
             return
         f2 = (new / self.scale) ** 2
