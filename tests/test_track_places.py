@@ -194,6 +194,7 @@ def test_the_posterior_is_the_log_space_one_on_a_long_chain_with_forbidden_moves
     fast = posterior(log_e, log_a, log_prior)
     assert np.allclose(fast, slow, atol=1e-9) and np.allclose(fast.sum(axis=1), 1.0)
 
+
 def test_the_fast_geometry_helpers_give_numpys_bits():
     """The online tracker's closed-form Mahalanobis length and its one-sort median replace numpy's
     general routines on its hot path; answers must not move by a bit (the tracker's tie-breaks and

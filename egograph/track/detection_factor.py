@@ -32,10 +32,17 @@ ESTIMATORS = {
 
 
 
+def lengths(v: np.ndarray) -> np.ndarray:
+    """Euclidean length of each vector along the last axis of ``v``: ``np.linalg.norm(v, axis=-1)``,
+    the same bits, without its argument checks (the online tracker asks for it several times per
+    detection, on arrays of a few dozen rows)."""
+    return np.sqrt((v * v).sum(axis=-1))
+
+
 def detection_covariances(world: np.ndarray, camera: np.ndarray, cfg: DetectionNoiseConfig) -> np.ndarray:
     """(M, 3, 3) world-frame covariances (m^2) of lifted points ``world`` seen from ``camera`` (M, 3)."""
     ray = np.asarray(world, float) - np.asarray(camera, float)
-    r = np.sqrt((ray * ray).sum(axis=1))  # np.linalg.norm, without its checks (called per detection online)
+    r = lengths(ray)
     u = ray / np.maximum(r, 1e-9)[:, None]
     s_ray = cfg.scale * (cfg.range_sigma_m + cfg.range_sigma_per_m * r)
     s_lat = cfg.scale * (cfg.lateral_sigma_m + cfg.lateral_sigma_per_m * r)

@@ -69,14 +69,14 @@ def fit_scale_ratio(d2: np.ndarray, gate: float, lo: float = 0.05, hi: float = 2
     """The factor ``r`` by which the sigmas that whitened ``d2`` (squared distances, all within
     ``gate``) are too small; clipped to ``[lo, hi]``."""
     target = float(np.median(np.minimum(d2, gate)))
-    if truncated_median(hi, gate) <= target:
+    fa, fb = truncated_median(lo, gate) - target, truncated_median(hi, gate) - target
+    if fb <= 0:
         return hi
-    if truncated_median(lo, gate) >= target:
+    if fa >= 0:
         return lo
     # Illinois false position on log r (the median grows smoothly with r): a dozen steps where
     # bisection takes sixty, to 1e-12 relative
     a, b = math.log(lo), math.log(hi)
-    fa, fb = truncated_median(lo, gate) - target, truncated_median(hi, gate) - target
     side = 0
     for _ in range(100):
         m = (a * fb - b * fa) / (fb - fa)

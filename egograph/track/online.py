@@ -52,6 +52,7 @@ from egograph.core.types import PositionInterval, Prediction
 from egograph.core.units import TICKS_PER_SECOND
 from egograph.geometry.observations import Observations
 from egograph.track.config import GraphConfig
+from egograph.track.detection_factor import lengths
 from egograph.track.noise_scale import refit
 from egograph.track.places import (
     ANY_CARRY,
@@ -468,7 +469,7 @@ class OnlineTracker:
             c = np.argmin(d2, axis=1)                                          # each place's best candidate
             rows = np.arange(len(px))
             best_d2, dc = d2[rows, c], d[rows, c]
-        fits = (best_d2 <= self.cfg.inlier_chi2) | (np.sqrt((dc * dc).sum(axis=1)) <= self.cfg.merge_radius_m)
+        fits = (best_d2 <= self.cfg.inlier_chi2) | (lengths(dc) <= self.cfg.merge_radius_m)
         if not fits.any():
             return -1, -1
         j = int(np.argmin(np.where(fits, best_d2, np.inf)))                  # first of equals, as a loop would
@@ -519,8 +520,7 @@ class OnlineTracker:
         if st.places and on.any():
             cx, cn = self._claim_xyz[on], self._claim_n[on]
             px, _, pn = st.place_arrays()
-            d = px[:, None] - cx[None]
-            near = np.sqrt((d * d).sum(axis=2)) <= self.cfg.exclusion_radius_m  # np.linalg.norm, without its checks
+            near = lengths(px[:, None] - cx[None]) <= self.cfg.exclusion_radius_m
             claimed = (near & (cn[None] > pn[:, None])).any(axis=1)
         claimed.flags.writeable = False
         st.claimed = (st.version, self._claims_version, claimed)
@@ -547,8 +547,7 @@ class OnlineTracker:
                     ) -> tuple[np.ndarray, np.ndarray]:
         """Place ``j`` moved within ``merge_radius_m`` of another: one place, the stronger keeps the
         inliers of both and the better score of each state."""
-        d = st.place_arrays()[0] - st.places[j].xyz
-        gap = np.sqrt((d * d).sum(axis=1))  # np.linalg.norm, without its checks
+        gap = lengths(st.place_arrays()[0] - st.places[j].xyz)
         near = [int(i) for i in np.flatnonzero(gap <= self.cfg.merge_radius_m) if i != j]
         if not near:
             return delta, back

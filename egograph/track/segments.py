@@ -18,7 +18,7 @@ import numpy as np
 from egograph.core.types import PositionInterval
 from egograph.track.chain import L, solve_lm
 from egograph.track.config import GraphConfig
-from egograph.track.detection_factor import add_detection_factors, detection_covariances, mahalanobis2
+from egograph.track.detection_factor import add_detection_factors, detection_covariances, lengths, mahalanobis2
 
 NegativeFn = Callable[[int, np.ndarray, int, int], "int | None"]
 """``(instance, xyz, frame_from, frame_to) -> first frame index in [from, to) whose depth
@@ -135,11 +135,9 @@ def moves_with_camera(world: np.ndarray, camera: np.ndarray, range_m: np.ndarray
     more than ``carry_spread_m`` and more than ``margin`` times its head-relative offsets do."""
     if median0(range_m) > cfg.carry_range_m:
         return False
-    d = world - median0(world)
-    spread_world = median0(np.sqrt((d * d).sum(axis=1)))   # np.linalg.norm, without its checks
+    spread_world = median0(lengths(world - median0(world)))
     rel = world - camera
-    d = rel - median0(rel)
-    spread_rel = median0(np.sqrt((d * d).sum(axis=1)))
+    spread_rel = median0(lengths(rel - median0(rel)))
     return bool(spread_world > cfg.carry_spread_m and spread_world > margin * spread_rel)
 
 
