@@ -41,6 +41,9 @@ def main() -> None:
     ap.add_argument("--keep", type=Path, help="keep the depth-only recording here")
     ap.add_argument("--renderers", nargs="+", default=["gl", "raycast"], choices=["gl", "raycast"],
                     help="PV renderers to time in the runs with RGB")
+    ap.add_argument("--device-config", default=str(synth_config("device-svoe")),
+                    help="device-world config timed with RGB beside the legacy world's runs ('' to skip): the "
+                         "same frames and seed, photographic surfaces and the PV camera model")
     benchdoc.add_arguments(ap, __file__)
     args = ap.parse_args()
     benchdoc.start(__file__, args)
@@ -74,6 +77,20 @@ def main() -> None:
                 rows.append((f"generate, with RGB ({ren})", r.frames, r.seconds, cpu))
                 pv_rows.append((f"PV colour alone ({ren}: render + PNG)", r.frames, r.seconds - base[0], cpu - base[1]))
                 shutil.rmtree(tmp / f"rgb_{ren}", ignore_errors=True)
+            if args.device_config:
+                for rgb in (False, True):
+                    cfg = load_config(SynthConfig, args.device_config, [f"frames={args.rgb_frames}", f"pv.rgb={str(rgb).lower()}"])
+                    c = time.process_time()
+                    r = generate(tmp / "rgb_device", cfg, seed=args.seed, progress=True)
+                    cpu = time.process_time() - c
+                    if not rgb:
+                        dev_base = (r.seconds, cpu)
+                        rows.append(("generate, device world, depth only", r.frames, r.seconds, cpu))
+                    else:
+                        rows.append(("generate, device world, with RGB", r.frames, r.seconds, cpu))
+                        pv_rows.append(("PV colour alone (device world: render + camera + PNG)", r.frames,
+                                        r.seconds - dev_base[0], cpu - dev_base[1]))
+                    shutil.rmtree(tmp / "rgb_device", ignore_errors=True)
         rows += pv_rows
     finally:
         shutil.rmtree(tmp, ignore_errors=True)

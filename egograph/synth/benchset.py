@@ -25,7 +25,7 @@ from egograph.geometry.observations import Observations
 from egograph.io.recording import Recording
 from egograph.synth.config import SynthConfig
 from egograph.synth.frontend import FRONTEND_REVISION
-from egograph.synth.generate import GENERATOR_REVISION, PV_REVISION, generate, redetect
+from egograph.synth.generate import DEVICE_REVISION, GENERATOR_REVISION, PV_REVISION, generate, recorded_config, redetect
 
 ORACLE = "oracle"
 """Observation source: the true boxes (:func:`egograph.synth.oracle.true_box_detections`)."""
@@ -44,6 +44,9 @@ def rendered_config(config: dict) -> dict:
     """A recording's config without its detection front-ends and the PV pixel knobs: what
     re-rendering the depth, poses and views depends on."""
     out = {k: v for k, v in config.items() if k != "detections"}
+    if out.get("world", "legacy") == "legacy":  # recordings before the device world carry neither key
+        out.pop("world", None)
+        out.pop("device", None)
     if isinstance(out.get("pv"), dict):
         out["pv"] = {k: v for k, v in out["pv"].items() if k not in PIXEL_ONLY_PV_KNOBS}
     return out
@@ -69,6 +72,7 @@ def benchmark_set(seeds: Sequence[int], frames: int, *, config: str | Path, cach
         meta = json.loads(meta_path.read_text()) if meta_path.exists() else None
         have = meta["config"] if meta else None
         if meta is None or meta.get("seed") != seed or meta.get("revision") != GENERATOR_REVISION \
+                or meta.get("device_revision") != (DEVICE_REVISION if cfg.world == "device" else None) \
                 or rendered_config(have) != rendered_config(want):
             print(f"generating benchmark recording seed {seed} ({frames} frames) -> {root}", flush=True)
             generate(root, cfg, seed=seed, progress=progress)
@@ -91,7 +95,8 @@ def rgb_benchmark_set(seeds: Sequence[int], frames: int, *, config: str | Path, 
         meta = root / "recording.json"
         have = json.loads(meta.read_text()) if meta.exists() else {}
         ok = have.get("revision") == GENERATOR_REVISION and have.get("pv_revision") == PV_REVISION \
-            and have["config"] == {**to_dict(cfg), "detections": have["config"].get("detections")}
+            and have.get("device_revision") == (DEVICE_REVISION if cfg.world == "device" else None) \
+            and have["config"] == {**recorded_config(cfg), "detections": have["config"].get("detections")}
         if not ok:
             print(f"generating RGB benchmark recording seed {seed} ({frames} frames) -> {root}", flush=True)
             generate(root, cfg, seed=seed, progress=True)

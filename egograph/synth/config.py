@@ -6,6 +6,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 from egograph.core.config import Checked, knob, rule_error, section
+from egograph.core.errors import ConfigError
 
 DETECTION_SETS = ("svoe", "mvpe")
 """The simulated front-ends, one detection set each (``detections.svoe``, ``detections.mvpe``)."""
@@ -157,9 +158,91 @@ class DetectionsConfig(Checked):
                         choices=DETECTION_SETS)
 
 
+WORLDS = ("legacy", "device")
+"""Generator worlds: ``legacy`` (procedural lattice textures on boxes and cylinders, sharp noise-free
+PV frames: generator revision 4, kept so earlier records stay comparable) and ``device`` (photographic
+surfaces, category meshes, look-alikes that differ as real ones do, the PV camera's exposure, noise,
+motion blur and compression, hands that reach and withdraw, MVPE photos on a tabletop)."""
+
+LOOKALIKE_KINDS = ("label", "colour", "sticker")
+
+
+@dataclass
+class LookalikeConfig(Checked):
+    """How the twins of the device world differ (the legacy world's twins share a pattern and differ by a band)."""
+
+    kinds: list[str] = knob(["sticker", "colour", "label"], "how the second instance of pair p differs, cycling through "
+                            "the list: sticker (the same print, one small region replaced: a logo or sticker), colour "
+                            "(the same design in another colour: hue turned by `hue_shift`), label (another print or "
+                            "photograph on the same product); the first pair of every recording takes the first kind")
+    hue_shift: list[float] = knob([60.0, 150.0], "range of the hue turn of a colour twin, degrees (smaller is closer)",
+                                  min=0.0, max=180.0, length=2, ordered=True)
+    sticker_size: float = knob(0.18, "side of the region a sticker twin replaces, share of the label's height "
+                                "(smaller is closer)", gt=0.0, max=1.0)
+
+    def cross_check(self) -> None:
+        if not self.kinds or any(k not in LOOKALIKE_KINDS for k in self.kinds):
+            raise rule_error(self, "{} must be a non-empty list of " + "/".join(LOOKALIKE_KINDS), "kinds")
+
+
+@dataclass
+class RoomLightConfig(Checked):
+    """The device world's room light, drawn once per recording."""
+
+    dim_share: float = knob(0.35, "probability that a recording is in a dim room (evening, one lamp)", min=0.0, max=1.0)
+    bright: list[float] = knob([0.6, 1.6], "range of the light level of a lit room (1 is an office at about 300 lux)",
+                               gt=0.0, length=2, ordered=True)
+    dim: list[float] = knob([0.05, 0.15], "range of the light level of a dim room", gt=0.0, length=2, ordered=True)
+    warm: list[float] = knob([0.0, 1.0], "range of the lamps' warmth (0 daylight white, 1 tungsten orange)",
+                             min=0.0, max=1.0, length=2, ordered=True)
+
+
+@dataclass
+class PvCameraConfig(Checked):
+    """The device world's PV camera (HoloLens 2 photo/video stream, 1280x720 at 30 fps, video-encoded)."""
+
+    ae_target: float = knob(0.16, "auto-exposure target: mean linear (pre-gamma) pixel value of the metered frame",
+                            gt=0.0, lt=1.0)
+    ae_time_constant: float = knob(0.35, "time constant of auto-exposure following its target (log exposure), s",
+                                   min=0.0)
+    exposure_ms: list[float] = knob([2.0, 33.0], "range of the exposure time, ms (33 at 30 fps)", gt=0.0, length=2,
+                                    ordered=True)
+    max_gain: float = knob(8.0, "largest analogue+digital gain; beyond it a dark room stays underexposed", min=1.0)
+    full_well: float = knob(3000.0, "electrons at full scale with gain 1 (small phone-size pixels)", gt=0.0)
+    read_noise: float = knob(3.0, "read noise std, electrons", min=0.0)
+    sensitivity: float = knob(15.0, "linear pixel value per (radiance x second) at gain 1 (radiance: albedo x light x "
+                              "the room's level; a lit white surface in a level-1 room is about 1): such a surface fills "
+                              "the pixel in 1/15 s, so a level-1 room is exposed about 1/60 s", gt=0.0)
+    blur: bool = knob(True, "integrate the head's motion over the exposure (per-pixel flow from depth and the PV "
+                      "poses at shutter open and close)")
+    blur_taps: int = knob(10, "most samples along a pixel's motion path, one per 2 pixels of the longest path (fewer "
+                          "when it moves less)", min=1)
+    denoise_sigma: float = knob(0.7, "the ISP's spatial noise reduction: Gaussian std, pixels (0 switches it off)", min=0.0)
+    vignetting: float = knob(0.35, "light lost in the image corners, share", min=0.0, max=1.0)
+    jpeg_quality: int = knob(80, "quality of the JPEG round trip that stands for the release's video compression "
+                             "(0 switches it off)", min=0, max=100)
+
+
+@dataclass
+class DeviceWorldConfig(Checked):
+    """Knobs of the device world (``world: device``); the legacy world ignores them."""
+
+    lookalikes: LookalikeConfig = section(LookalikeConfig, "how look-alike twins differ")
+    light: RoomLightConfig = section(RoomLightConfig, "the room's light")
+    camera: PvCameraConfig = section(PvCameraConfig, "the PV camera's exposure, noise, blur and compression")
+    hand_reach: bool = knob(True, "the hand reaches for the object during the look before a pick-up and withdraws "
+                            "during the look after the put-down (false: it is there only while carrying)")
+    mvpe_in_hand: int = knob(5, "MVPE photos per instance taken with the object in hand (the others on a tabletop)",
+                             min=0)
+    mvpe_clutter: int = knob(4, "other objects on the tabletop around the object in its MVPE photos", min=0)
+
+
 @dataclass
 class SynthConfig(Checked):
     sequence: str = knob("synth_seq", "sequence folder name")
+    world: str = knob("legacy", "generator world: legacy (revision 4: lattice textures, boxes and cylinders, sharp "
+                      "noise-free frames) or device (photographic surfaces, category meshes, the PV camera's exposure, "
+                      "noise, blur and compression, reaching hands; needs pv.renderer=gl)", choices=WORLDS)
     frames: int = knob(3000, "number of PV frames at 30 fps (at least 2: the wearer's motion is differentiated over frames)", min=2)
     fps: float = knob(30.0, "PV frame rate, frames per second", gt=0.0)
     annotation_stride: int = knob(5, "2D boxes are annotated every Nth frame when at least a quarter visible", min=1)
@@ -170,8 +253,11 @@ class SynthConfig(Checked):
     pv: PvConfig = section(PvConfig, "PV (RGB) camera model")
     pose_error: PoseErrorConfig = section(PoseErrorConfig, "HoloLens head-tracking error model of the reported poses")
     detections: DetectionsConfig = section(DetectionsConfig, "simulated detection front-ends")
+    device: DeviceWorldConfig = section(DeviceWorldConfig, "the device world (world: device)")
 
     def cross_check(self) -> None:
         # the sequence name becomes a folder under the output root
         if not self.sequence or "/" in self.sequence or "\\" in self.sequence or self.sequence in (".", ".."):
             raise rule_error(self, "{} must be a folder name (not empty, no path separator)", "sequence")
+        if self.world == "device" and self.pv.renderer != "gl":
+            raise ConfigError(f"world=device renders by OpenGL only: pv.renderer must be gl, not {self.pv.renderer!r}")

@@ -44,7 +44,7 @@ from egograph.synth.sensors import (
     room_lamps,
     simulate_ahat,
 )
-from egograph.synth.trajectory import Trajectory, make_trajectory
+from egograph.synth.trajectory import Trajectory, make_trajectory, rot_y
 
 TS0 = 133_400_000_000_000_000  # a HoloLens-like 100 ns tick count (2023)
 # Bumped whenever the same seed and config would render a different recording, so caches of
@@ -53,7 +53,12 @@ GENERATOR_REVISION = 4  # 4: real AHAT calibration, gaze on the hands, hand occl
 # Revision of the PV colour frames alone (recordings without RGB do not depend on it): 1 ray cast and
 # shaded in numpy (generator revision 4), 2 rasterised by OpenGL (pv.renderer=gl) and written by io.png.
 PV_REVISION = 2
-STREAMS = ("scene", "activity", "depth", "pose_error", "svoe", "mvpe", "textures", "mesh")
+# Revision of the device world (world: device; recording.json "device_revision"): bumped whenever the
+# same seed and config would give a different device-world recording.
+DEVICE_REVISION = 1
+# The device world draws its looks and its camera noise from the last two streams (spawned children of
+# a SeedSequence do not depend on how many are spawned: the legacy streams are unchanged).
+STREAMS = ("scene", "activity", "depth", "pose_error", "svoe", "mvpe", "textures", "mesh", "look", "camera")
 
 
 @dataclass
@@ -99,8 +104,10 @@ def _project_box(vertices_world: np.ndarray, world_to_pv: np.ndarray, k_pv: np.n
 
 
 def silhouette_pixels(scene: Scene, j: int, pos: np.ndarray, yaw: float, origin: np.ndarray, pose: np.ndarray,
-                      dirs_cam: np.ndarray, grid: tuple[int, int], box_grid: np.ndarray) -> int:
-    """Pixels of the (downsampled) PV grid the object covers when nothing else is in the scene.
+                      dirs_cam: np.ndarray, grid: tuple[int, int], box_grid: np.ndarray, hand=None) -> int:
+    """Pixels of the (downsampled) PV grid the object covers when nothing else is in the scene
+    (``hand``: ``(vertices, triangles)`` of a hand in front of it, world metres: the pixels the
+    object still shows with the hand alone in the scene).
 
     Only the rays inside its box are cast, so occlusion by other objects, furniture or the
     hand is measured against the true unoccluded silhouette.
@@ -117,10 +124,15 @@ def silhouette_pixels(scene: Scene, j: int, pos: np.ndarray, yaw: float, origin:
     rc = o3d.t.geometry.RaycastingScene()
     v = object_world_vertices(scene, j, pos, yaw)
     rc.add_triangles(o3d.core.Tensor(v.astype(np.float32)), o3d.core.Tensor(scene.objects[j].triangles.astype(np.uint32)))
+    if hand is not None:
+        rc.add_triangles(o3d.core.Tensor(np.asarray(hand[0], np.float32)), o3d.core.Tensor(np.asarray(hand[1], np.uint32)))
     rays = np.empty((len(idx), 6), np.float32)
     rays[:, :3] = origin
     rays[:, 3:] = dirs_cam[idx] @ pose[:3, :3]
-    return int(np.isfinite(rc.cast_rays(o3d.core.Tensor(rays))["t_hit"].numpy()).sum())
+    ans = rc.cast_rays(o3d.core.Tensor(rays))
+    if hand is None:
+        return int(np.isfinite(ans["t_hit"].numpy()).sum())
+    return int((ans["geometry_ids"].numpy() == 0).sum())
 
 
 def _clutter_spots(rng: np.random.Generator, scene: Scene, per_instance: int) -> np.ndarray:
@@ -177,6 +189,110 @@ def render_mvpe_photos(scene: Scene, textures: Textures, size: int, cfg: SynthCo
             cam_to_world[3, :3] = eye
             imgs.append(renderer.render(cam_to_world, pos, yaw, None, only=k))
         photos[obj.name] = imgs
+    renderer.release()
+    return photos
+
+
+def _open_device_renderer(scene: Scene, light, camera, extra_layers=None):
+    from egograph.synth.render_device import DeviceRenderer
+    from egograph.synth.render_gl import GlUnavailable
+
+    try:
+        return DeviceRenderer(scene, light, camera, extra_layers)
+    except GlUnavailable as e:
+        raise ConfigError(f"world=device renders by OpenGL: {e}") from None
+
+
+def _look_at(eye: np.ndarray, target: np.ndarray, roll: float = 0.0) -> np.ndarray:
+    """Row-vector cam_to_world of a camera at ``eye`` looking at ``target`` (y up, looking down -z)."""
+    fwd = np.asarray(target, float) - eye
+    fwd /= np.linalg.norm(fwd)
+    right = np.cross(fwd, [0.0, 1.0, 0.0])
+    right /= np.linalg.norm(right)
+    up = np.cross(right, fwd)
+    c, s = np.cos(roll), np.sin(roll)
+    right, up = c * right + s * up, -s * right + c * up
+    pose = np.eye(4)
+    pose[:3, :3] = np.stack([right, up, -fwd])
+    pose[3, :3] = eye
+    return pose
+
+
+def render_mvpe_photos_device(scene: Scene, cfg: SynthConfig, rng: np.random.Generator) -> dict[str, list[np.ndarray]]:
+    """25 enrollment photos per instance as people take them with a phone: the object on a tabletop
+    (wood or a tablecloth, a wall behind, ``device.mvpe_clutter`` other objects around it) from
+    around and above, and ``device.mvpe_in_hand`` views with the object held up in a hand; the
+    room's light plus the phone's own light, auto-exposed, with the phone's (small) noise."""
+    from dataclasses import replace as dc_replace
+
+    from egograph.synth.camera import AutoExposure, develop, metered
+    from egograph.synth.device import RoomLight, _static_records
+    from egograph.synth.materials import PhotoLibrary, fabric_texture, wood_texture
+    from egograph.synth.scene import box_mesh as _box
+
+    size = cfg.mvpe_photo_size
+    f = size * 0.9
+    lib = PhotoLibrary()
+    base = len(scene.layers)
+    tops = [wood_texture(rng, lib, rng.uniform(0, 0.8)), fabric_texture(rng, lib, rng.uniform(120, 230, 3))]
+    phone_light = RoomLight(1.0, False, np.array([0.35, 0.33, 0.3]), np.array([0.3, 0.3, 0.32]),
+                            np.array([0.5, 0.47, 0.42]), np.array([[0.4, 1.4, 0.6]]))
+    renderer = _open_device_renderer(scene, phone_light, Pinhole((size, size), (f, f), (size / 2, size / 2)), tops)
+    phone = dc_replace(cfg.device.camera, jpeg_quality=0, read_noise=2.0, full_well=6000.0)
+    n_hand = min(cfg.device.mvpe_in_hand, 25)
+    photos: dict[str, list[np.ndarray]] = {}
+    k_all = len(scene.objects)
+    yaw0 = np.zeros(k_all)
+    for k, obj in enumerate(scene.objects):
+        top = base + int(rng.integers(2))
+        table_v, table_t = _box([0.0, -0.02, 0.0], [1.6, 0.04, 1.1])
+        # The table in a corner of a room: walls on all sides, so no view looks into the void.
+        recs = [_static_records(table_v, table_t, top, 0.7)]
+        for c, s in (([0.0, 0.7, -1.2], [3.0, 3.0, 0.02]), ([0.0, 0.7, 1.6], [3.0, 3.0, 0.02]),
+                     ([-1.4, 0.7, 0.2], [0.02, 3.0, 3.0]), ([1.4, 0.7, 0.2], [0.02, 3.0, 3.0]),
+                     ([0.0, -0.75, 0.2], [3.0, 0.02, 3.0])):
+            wall_v, wall_t = _box(c, s)
+            recs.append(_static_records(wall_v, wall_t, 1 if s[1] > 0.1 else 0, 1.5))
+        dist = 1.9 * float(np.linalg.norm(obj.size)) / 2 / np.tan(np.arctan(size / 2 / f))
+        pool = list(scene.props)
+        for c in range(min(cfg.device.mvpe_clutter, len(pool))):
+            p = pool[int(rng.integers(len(pool)))]
+            # Beyond the camera's distance: clutter stands behind and beside the object, not in front of the lens.
+            ang, rad = rng.uniform(0, 2 * np.pi), rng.uniform(max(0.25, 1.2 * dist), 1.2 * dist + 0.3)
+            r = rot_y(rng.uniform(0, 2 * np.pi))
+            v = p.model.vertices @ r.T + [rad * np.cos(ang), p.model.size[1] / 2, rad * np.sin(ang)]
+            recs.append(_static_records(v, p.model.triangles, p.model.layer, 0.0, p.model.uv, p.model.normals @ r.T))
+        vao = renderer.records_vao(np.vstack(recs))
+        extra = [(vao, np.eye(4))]
+        pos = np.zeros((k_all, 3))
+        yaw = yaw0.copy()
+        yaw[k] = rng.uniform(0, 2 * np.pi)
+        imgs = []
+        for m in range(25):
+            in_hand = m >= 25 - n_hand
+            if in_hand:
+                pos[k] = [0.0, 0.35, 0.1]
+                azim = rng.uniform(-0.5, 0.5)
+                elev = np.radians(rng.uniform(15, 40))
+                eye = pos[k] + dist * 1.1 * np.array([np.cos(elev) * np.sin(azim), np.sin(elev), np.cos(elev) * np.cos(azim)])
+                body_yaw = float(np.arctan2(-(pos[k] - eye)[0], -(pos[k] - eye)[2]))
+                body = np.array([[np.cos(body_yaw), 0, -np.sin(body_yaw)], [0, 1, 0], [np.sin(body_yaw), 0, np.cos(body_yaw)]])
+                g = np.array([max(obj.size[0], obj.size[2]), obj.size[1], max(obj.size[0], obj.size[2])])
+                palm = pos[k] + np.array([g[0] / 2 + 0.014, -0.1 * g[1], 0.0]) @ body
+                hand = (palm, body_yaw, g)
+            else:
+                pos[k] = [0.0, obj.size[1] / 2, 0.0]
+                azim = np.radians(m * 360.0 / (25 - n_hand)) + rng.uniform(-0.1, 0.1)
+                elev = np.radians(rng.uniform(20, 60))
+                eye = pos[k] + dist * np.array([np.cos(elev) * np.sin(azim), np.sin(elev), np.cos(elev) * np.cos(azim)])
+                hand = None
+            renderer.set_flash(eye, 0.25)
+            pose = _look_at(eye, pos[k] + rng.normal(0, 0.01, 3), rng.normal(0, 0.05))
+            radiance, _ = renderer.render(pose, pos, yaw, hand, only=[k], room=False, extra=extra)
+            ex = AutoExposure(phone, 30.0).exposure(metered(radiance))
+            imgs.append(develop(radiance, ex, phone, rng))
+        photos[obj.name] = imgs
+        vao.release()
     renderer.release()
     return photos
 
@@ -242,8 +358,19 @@ def generate(out: str | Path, cfg: SynthConfig, seed: int, progress: bool = True
     t_start = time.perf_counter()
     out = Path(out)
     rngs = dict(zip(STREAMS, (np.random.default_rng(s) for s in np.random.SeedSequence(seed).spawn(len(STREAMS)))))
-    scene = make_scene(rngs["scene"], cfg.scene)
+    device = cfg.world == "device"
+    if device:
+        from egograph.synth.device import hand_path, make_device_scene, room_light
+        from egograph.synth.materials import PhotoLibrary
+
+        scene = make_device_scene(rngs["scene"], rngs["look"], cfg, PhotoLibrary())
+        light = room_light(rngs["look"], cfg, np.array(cfg.scene.room_size))
+    else:
+        scene = make_scene(rngs["scene"], cfg.scene)
     traj = make_trajectory(rngs["activity"], scene, cfg)
+    hand_obj = np.full(cfg.frames, -1)
+    if device:
+        traj.hand_pos, traj.hand_active, hand_obj, hand_grip = hand_path(traj, scene, cfg)
     headset = make_calibration(cfg.ahat, cfg.pv)
     ahat_cal, pv_cal = headset.ahat, headset.pv
     n, k = cfg.frames, len(scene.objects)
@@ -268,8 +395,8 @@ def generate(out: str | Path, cfg: SynthConfig, seed: int, progress: bool = True
     clutter = _clutter_spots(rngs["scene"], scene, max(cfg.detections.svoe.clutter_per_instance,
                                                         cfg.detections.mvpe.clutter_per_instance))
     twins = np.array([o.twin for o in scene.objects])
-    textures = Textures(rngs["textures"])
-    lamps = room_lamps(rngs["textures"], scene.room_size)
+    textures = None if device else Textures(rngs["textures"])
+    lamps = None if device else room_lamps(rngs["textures"], scene.room_size)
 
     ahat_dirs, ahat_norms = ahat_camera_rays(ahat_cal)
     ahat_cam_to_node = invert_rigid(ahat_cal.extrinsics)
@@ -278,9 +405,29 @@ def generate(out: str | Path, cfg: SynthConfig, seed: int, progress: bool = True
     vis_dirs, vis_shape = pv_camera_rays(pv_cal, ds)
     # Enrollment photos first: they need nothing from the frames, and a missing OpenGL fails here,
     # before any frame is rendered.
-    photos = render_mvpe_photos(scene, textures, cfg.mvpe_photo_size, cfg)
-    pv_renderer = open_pv_renderer(cfg, scene, textures, lamps, pv_cal) if cfg.pv.rgb else None
+    if device:
+        from egograph.synth.camera import AutoExposure, NoiseBank, develop, image_motion, metered, vignette
+
+        photos = render_mvpe_photos_device(scene, cfg, rngs["look"])
+        pv_renderer = _open_device_renderer(scene, light, pv_cal) if cfg.pv.rgb else None
+        ae = AutoExposure(cfg.device.camera, fps)
+
+        def rig_open_close(i: int, seconds: float) -> np.ndarray:
+            """Rig poses (2, 4, 4) at shutter open and close of frame i (exposure centred on the frame time)."""
+            return traj.rig_poses(np.array([i - seconds * fps / 2, i + seconds * fps / 2]))
+
+        def _turn_dps(rig: np.ndarray, seconds: float) -> float:
+            rel = rig[0, :3, :3] @ rig[1, :3, :3].T
+            return float(np.degrees(np.arccos(np.clip((np.trace(rel) - 1) / 2, -1, 1))) / max(seconds, 1e-9))
+        vig = vignette(PV_SHAPE, cfg.device.camera.vignetting)
+        noise = NoiseBank(rngs["camera"], PV_SHAPE + (3,)) if cfg.pv.rgb else None
+        exposure = np.zeros((n, 4))
+        prev_metered = None
+    else:
+        photos = render_mvpe_photos(scene, textures, cfg.mvpe_photo_size, cfg)
+        pv_renderer = open_pv_renderer(cfg, scene, textures, lamps, pv_cal) if cfg.pv.rgb else None
     k_pv = pv_cal.intrinsics
+    hand_cover = np.zeros((n, k), np.float32)
 
     visible = np.zeros((n, k))
     boxes = np.full((n, k, 4), np.nan)
@@ -297,7 +444,8 @@ def generate(out: str | Path, cfg: SynthConfig, seed: int, progress: bool = True
         for i in tqdm(range(n), desc=f"synth {cfg.sequence}", unit="frame", disable=not progress, mininterval=1.0):
             obj_pos, obj_yaw = traj.objects_at(i)
             hand, hand_yaw, hand_on = traj.hand_at(i)
-            geom = build_raycasting_scene(scene, obj_pos, obj_yaw, (hand, hand_yaw) if hand_on else None)
+            hand_args = None if not hand_on else (hand, hand_yaw, hand_grip[i]) if device else (hand, hand_yaw)
+            geom = build_raycasting_scene(scene, obj_pos, obj_yaw, hand_args)
             pose = pv_true[i]
             origin = pose[3, :3]
             dirs = vis_dirs @ pose[:3, :3]
@@ -314,6 +462,10 @@ def generate(out: str | Path, cfg: SynthConfig, seed: int, progress: bool = True
                     continue
                 boxes[i, j] = box
                 visible[i, j] = min(1.0, seen[j] / full) * inside
+                if device and hand_on and hand_obj[i] == j:
+                    alone = silhouette_pixels(scene, j, obj_pos[j], obj_yaw[j], origin, pose, vis_dirs, vis_shape, box / ds,
+                                              scene.hand_mesh(*hand_args)[:2])
+                    hand_cover[i, j] = 1.0 - min(1.0, alone / full)
             # Clutter spots: seen where the static surface at their pixel is at their depth.
             cb = np.full(clutter.shape[:2] + (4,), np.nan)
             uv, dep = pv_project(transform_points(clutter.reshape(-1, 3), world_to_pv), k_pv)
@@ -342,11 +494,25 @@ def generate(out: str | Path, cfg: SynthConfig, seed: int, progress: bool = True
             fd = i + depth_offset[i]
             obj_d, yaw_d = traj.objects_at(fd)
             hand_d, hand_yaw_d, hand_d_on = traj.hand_at(fd)
-            geom_d = build_raycasting_scene(scene, obj_d, yaw_d, (hand_d, hand_yaw_d) if hand_d_on else None)
+            hand_d_args = None if not hand_d_on else (hand_d, hand_yaw_d, hand_grip[min(int(round(fd)), n - 1)]) if device \
+                else (hand_d, hand_yaw_d)
+            geom_d = build_raycasting_scene(scene, obj_d, yaw_d, hand_d_args)
             raw = simulate_ahat(rng_d, scene, geom_d, ahat_cam_to_node @ depth_true[i], ahat_dirs, ahat_norms, cfg.ahat,
                                 ray_valid)
             write_png(seq_dir / "depth_ahat" / f"{ts[i]}.png", raw, 1)
-            if pv_renderer is not None:
+            if pv_renderer is not None and device:
+                radiance, depth = pv_renderer.render(pose, obj_pos, obj_yaw, hand_args)
+                m = metered(radiance)
+                ex = ae.exposure(m if prev_metered is None else prev_metered)
+                prev_metered = m
+                flow = None
+                if cfg.device.camera.blur:
+                    shutter = pv_cam_to_node @ headset.node_to_head @ rig_open_close(i, ex.seconds)
+                    flow = image_motion(depth, k_pv, pose, shutter[0], shutter[1])
+                img = develop(radiance, ex, cfg.device.camera, rngs["camera"], vig, flow, noise)
+                exposure[i] = (ex.seconds, ex.gain, ex.metered, _turn_dps(rig_open_close(i, ex.seconds), ex.seconds))
+                write_png(seq_dir / "pv" / f"{ts[i]}.png", img, cfg.pv.png_compression)
+            elif pv_renderer is not None:
                 img = pv_renderer.render(pose, obj_pos, obj_yaw, (hand, hand_yaw) if hand_on else None)
                 write_png(seq_dir / "pv" / f"{ts[i]}.png", img, cfg.pv.png_compression)
 
@@ -354,8 +520,15 @@ def generate(out: str | Path, cfg: SynthConfig, seed: int, progress: bool = True
             pv_renderer.release()
         views = {"visible": visible, "boxes": boxes, "clutter_boxes": clutter_boxes, "motion_dps": motion, "twins": twins}
         detections, det_truth = simulate_detections(cfg, seed, ts, views)
+        device_truth = None
+        if device:
+            device_truth = {"hand_cover": hand_cover, "hand_instance": hand_obj, "hand_on": traj.hand_active,
+                            "head_angular_speed_dps": ang_speed.astype(np.float32), "light": light}
+            if cfg.pv.rgb:
+                device_truth.update(pv_exposure_s=exposure[:, 0], pv_gain=exposure[:, 1], pv_metered=exposure[:, 2],
+                                    pv_exposure_turn_dps=exposure[:, 3])
         _write_outputs(tmp, cfg, seed, scene, traj, ts, pv_rep, depth_rep, pv_true, depth_true, ahat_cal, pv_cal,
-                       views, detections, det_truth, bbox_annot, svoe, jumps, depth_offset, rngs, photos)
+                       views, detections, det_truth, bbox_annot, svoe, jumps, depth_offset, rngs, photos, device_truth)
         for name, text in (extra_files or {}).items():
             (tmp / name).write_text(text)
     seconds = time.perf_counter() - t_start
@@ -365,7 +538,7 @@ def generate(out: str | Path, cfg: SynthConfig, seed: int, progress: bool = True
 
 def _write_outputs(tmp: Path, cfg: SynthConfig, seed: int, scene: Scene, traj: Trajectory, ts: np.ndarray,
                    pv_rep, depth_rep, pv_true, depth_true, ahat_cal, pv_cal, views, detections, det_truth,
-                   bbox_annot, svoe, jumps, depth_offset, rngs, photos) -> None:
+                   bbox_annot, svoe, jumps, depth_offset, rngs, photos, device_truth=None) -> None:
     import open3d as o3d
 
     seq = cfg.sequence
@@ -411,10 +584,18 @@ def _write_outputs(tmp: Path, cfg: SynthConfig, seed: int, scene: Scene, traj: T
                         boxes=views["boxes"].astype(np.float32), clutter_boxes=views["clutter_boxes"].astype(np.float32),
                         motion_dps=views["motion_dps"].astype(np.float32), twins=views["twins"],
                         depth_offset_s=(depth_offset / cfg.fps).astype(np.float64))
+    if device_truth is not None:
+        # The device world's truth beside it: the share of the gripped instance's silhouette the hand
+        # covers (hand_cover (N, K), PV visibility grid), which instance the hand is on (-1 none),
+        # the head's angular speed (deg/s, from the frame before) and, with RGB, the PV camera's exposure
+        # (s), gain, metering and the head's turn rate over the exposure (deg/s, shutter open to close).
+        np.savez_compressed(gt / "device.npz", **{k: np.asarray(v) for k, v in device_truth.items() if k != "light"})
     (gt / "intervals.json").write_text(json.dumps(intervals, indent=1))
     meta = {
         "objects": [{"name": o.name, "shape": o.shape, "size": o.size.tolist(), "color": o.color.tolist(),
-                     "albedo": o.albedo, "twin": o.twin} for o in scene.objects],
+                     "albedo": o.albedo, "twin": o.twin,
+                     **({"lookalike": o.lookalike} if scene.world == "device" and o.lookalike else {})}
+                    for o in scene.objects],
         "surfaces": [{"name": s.name, "center": s.center.tolist()} for s in scene.surfaces],
         # in the HoloLens mesh at their first place (frame 0), and after they moved
         "instances_in_mesh": [int(j) for j in baked],
@@ -424,9 +605,26 @@ def _write_outputs(tmp: Path, cfg: SynthConfig, seed: int, scene: Scene, traj: T
                    "src": m.src.tolist(), "dst": m.dst.tolist()} for m in traj.moves],
         "relocalisation_jump_frames": [int(j) for j in jumps],
     }
+    world = {}
+    if device_truth is not None:
+        from egograph.synth.materials import photo_sources
+
+        light = device_truth["light"]
+        meta["room_light"] = {"level": light.level, "dim": light.dim, "lamps": light.lamps.tolist()}
+        world = {"world": "device", "device_revision": DEVICE_REVISION, "photo_packages": photo_sources()}
     (gt / "scene.json").write_text(json.dumps(meta, indent=1))
     (tmp / "recording.json").write_text(json.dumps({
-        "generator": "egograph.synth", "version": __version__, "revision": GENERATOR_REVISION,
+        "generator": "egograph.synth", "version": __version__, "revision": GENERATOR_REVISION, **world,
         "frontend_revision": FRONTEND_REVISION, **({"pv_revision": PV_REVISION} if cfg.pv.rgb else {}), "seed": seed, "sequence": seq,
         "frames": cfg.frames, "detection_sets": sorted(detections), "primary_detections": cfg.detections.primary,
-        "config": to_dict(cfg)}, indent=1))
+        "config": recorded_config(cfg)}, indent=1))
+
+
+def recorded_config(cfg: SynthConfig) -> dict:
+    """The config a recording carries: a legacy-world recording without the device world's knobs
+    (as recordings before the device world, so their records and caches stay comparable)."""
+    out = to_dict(cfg)
+    if out.get("world") == "legacy":
+        out.pop("world")
+        out.pop("device", None)
+    return out

@@ -74,6 +74,13 @@ class ObjectModel:
     twin: int = -1            # index of the look-alike instance, or -1
     vertices: np.ndarray = field(default=None, repr=False)   # local frame
     triangles: np.ndarray = field(default=None, repr=False)
+    # device world only (egograph.synth.device): texture coordinates and normals of the mesh, the
+    # texture layer, the print design and how a twin differs from its first (label/colour/sticker)
+    uv: np.ndarray = field(default=None, repr=False)
+    normals: np.ndarray = field(default=None, repr=False)
+    layer: int = -1
+    design: object = field(default=None, repr=False)
+    lookalike: str = ""
 
 
 @dataclass
@@ -88,6 +95,7 @@ class Prop:
     color: np.ndarray
     albedo: float
     in_mesh: bool        # the HoloLens mapped it (False: it came after the mapping)
+    model: ObjectModel | None = None  # device world: its category mesh (object frame) and texture layer
 
 
 @dataclass
@@ -101,6 +109,13 @@ class Scene:
     static_triangles: np.ndarray
     static_tri_albedo: np.ndarray   # (T,) per static triangle
     static_tri_color: np.ndarray    # (T, 3)
+    # device world only (egograph.synth.device): "device", the texture layers (sRGB uint8 images),
+    # the static scene's render records, the room light and the hand's mesh function
+    world: str = "legacy"
+    layers: list = field(default=None, repr=False)
+    static_render: np.ndarray = field(default=None, repr=False)
+    light: object = None
+    hand_mesh: object = field(default=None, repr=False)
 
 
 DARK_ALBEDO = 0.15  # infrared reflectance of dark surfaces (AHAT config: dark_invalid below 0.25)
@@ -230,7 +245,10 @@ def prop_mesh(prop: Prop) -> tuple[np.ndarray, np.ndarray]:
     """World vertices and triangles of an untracked object."""
     from egograph.synth.trajectory import rot_y
 
-    v, t = box_mesh((0, 0, 0), prop.size) if prop.shape == "box" else cylinder_mesh(prop.size[0] / 2, prop.size[1], 12)
+    if prop.model is not None:
+        v, t = prop.model.vertices, prop.model.triangles
+    else:
+        v, t = box_mesh((0, 0, 0), prop.size) if prop.shape == "box" else cylinder_mesh(prop.size[0] / 2, prop.size[1], 12)
     return v @ rot_y(prop.yaw).T + prop.center, t
 
 

@@ -159,7 +159,7 @@ def build_raycasting_scene(scene: Scene, obj_pos: np.ndarray, obj_yaw: np.ndarra
         v = object_world_vertices(scene, k, obj_pos[k], obj_yaw[k])
         rc.add_triangles(o3d.core.Tensor(v.astype(np.float32), f32), o3d.core.Tensor(scene.objects[k].triangles.astype(np.uint32), i32))
     if hand is not None:
-        v, t = hand_mesh(*hand)
+        v, t = (scene.hand_mesh or hand_mesh)(*hand)[:2]
         rc.add_triangles(o3d.core.Tensor(v.astype(np.float32)), o3d.core.Tensor(t.astype(np.uint32)))
     return FrameGeometry(rc, len(scene.objects), hand is not None)
 
