@@ -119,7 +119,8 @@ def test_file_errors_name_file_line_and_value(tmp_path):
     assert message(SynthConfig, path=p).startswith(f"{p}:2: not valid YAML")
     missing = message(SynthConfig, path=tmp_path / "none.yaml")
     assert missing.startswith(f"{tmp_path / 'none.yaml'}: config not found (no file {tmp_path / 'none.yaml'}")
-    assert "packaged configs: default, frontend-mvpe, synth/mvpe, synth/svoe, synth/tiny" in missing
+    assert ("packaged configs: default, frontend-mvpe, synth/device-mvpe, synth/device-svoe, synth/device-tiny, "
+            "synth/mvpe, synth/svoe, synth/tiny") in missing
 
 
 def test_override_errors_are_not_blamed_on_the_file(tmp_path):
