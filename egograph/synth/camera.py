@@ -5,7 +5,7 @@ Per frame, in order: auto-exposure that meters the previous frame and follows it
 (log exposure, first order; exposure time first, then gain, both capped, so a dim room ends up
 dark and noisy), vignetting, motion blur integrated over the exposure (per-pixel image motion
 from depth and the PV poses at shutter open and close), shot and read noise in electrons amplified
-by the gain, the ISP's noise reduction (a small Gaussian), sRGB gamma, 8 bits, and a JPEG round trip standing for the video compression.
+by the gain, the ISP's noise reduction (a Gaussian, wider at a higher gain), sRGB gamma, 8 bits, and a JPEG round trip standing for the video compression.
 Linear pixel value at gain 1: ``radiance * sensitivity * exposure_s``.
 """
 
@@ -163,8 +163,8 @@ def develop(radiance: np.ndarray, exposure: Exposure, cfg: PvCameraConfig, rng: 
     z = noise.draw(rng) if noise is not None else rng.standard_normal(signal.shape, dtype=np.float32)
     value = signal + sigma * z
     value *= np.float32(exposure.gain)
-    if cfg.denoise_sigma > 0:  # the ISP's spatial noise reduction
-        value = cv2.GaussianBlur(value, (0, 0), cfg.denoise_sigma)
+    if cfg.denoise_sigma > 0:  # the ISP's spatial noise reduction, stronger at a higher gain (as ISPs do)
+        value = cv2.GaussianBlur(value, (0, 0), cfg.denoise_sigma * float(np.sqrt(exposure.gain)))
     np.clip(value, 0.0, 1.0, out=value)
     out = _GAMMA[(value * np.float32(_GAMMA_STEPS - 1) + np.float32(0.5)).astype(np.uint16)]
     if cfg.jpeg_quality:

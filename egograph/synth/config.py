@@ -217,7 +217,8 @@ class PvCameraConfig(Checked):
                       "poses at shutter open and close)")
     blur_taps: int = knob(10, "most samples along a pixel's motion path, one per 2 pixels of the longest path (fewer "
                           "when it moves less)", min=1)
-    denoise_sigma: float = knob(0.7, "the ISP's spatial noise reduction: Gaussian std, pixels (0 switches it off)", min=0.0)
+    denoise_sigma: float = knob(0.7, "the ISP's spatial noise reduction: Gaussian std at gain 1, pixels, growing with the "
+                                "square root of the gain (0 switches it off)", min=0.0)
     vignetting: float = knob(0.35, "light lost in the image corners, share", min=0.0, max=1.0)
     jpeg_quality: int = knob(80, "quality of the JPEG round trip that stands for the release's video compression "
                              "(0 switches it off)", min=0, max=100)
