@@ -633,6 +633,8 @@ def detect(rec: Recording, enroll: str, cfg, out: str | Path, *, encoder: str | 
     inputs = {"recording": outputs.recording_digest(rec), "enroll": enroll, "encoder": encoder_id(cfg, encoder),
               "proposals": source_name, "guided": guide_digest(guide_world) or False}
     depends = {"frontend": to_dict(fcfg), "io": to_dict(cfg.io)}
+    if frames is not None:   # a sample of the frames is another run than the whole recording
+        inputs["frames"] = [int(i) for i in frames]
     if adapt_id:   # unadapted runs keep the fingerprint they had before adaptation existed
         inputs["adapt"] = adapt_id
         depends["adapt"] = {k: v for k, v in to_dict(cfg.adapt).items() if k not in RUN_LEVEL_ADAPT_KNOBS}
@@ -676,6 +678,8 @@ def detect(rec: Recording, enroll: str, cfg, out: str | Path, *, encoder: str | 
             return STORED if run.stored is not None and i in run.stored and run.verifier is None else read_pv(rec, i)
 
         todo = list(range(len(rec))) if frames is None else sorted(int(i) for i in frames)
+        if not todo:
+            raise EgographError(f"{rec.seq_dir}: no PV frame to detect in")
         ahead = pool.submit(read, todo[0])
         for n, i in enumerate(tqdm(todo, desc=f"detect ({enroll})", unit="frame", disable=not progress, mininterval=1.0)):
             ts = int(rec.timestamps[i])
