@@ -231,3 +231,28 @@ def test_exclusive_matching_gives_each_proposal_one_instance(detected, tmp_path)
     # measured on this 60-frame fixture: 7 true / 50 false against 10 / 92 (1000-frame tuning
     # recordings: 896 / 943 against 921 / 2346)
     assert false_x < 0.75 * false_e and true_x / (true_x + false_x) > true_e / (true_e + false_e)
+
+
+def test_verification_writes_a_probability_and_which_model_gave_it(detected, tmp_path):
+    """frontend.verify: every written detection carries a probability at or above verify_threshold in
+    the similarity column and det_conf 1 (verified by local features) or 0 (the fallback model); a
+    box is one instance's only; the verification stage is timed; the collected pairs hold the
+    model's features (what tools/fit_verify.py fits)."""
+    from egograph.frontend.verify import FEATURES
+    from egograph.steps.lift import load_detections
+
+    rec, cfg, _, _ = detected
+    vcfg = cfg_for(verify="all", verify_threshold=0.05)
+    got: list = []
+    report = detect(rec, "mvpe", vcfg, tmp_path / "v", progress=False, collect=got)
+    rows = [line.split() for f in sorted((tmp_path / "v").glob("*.txt")) for line in f.read_text().splitlines()]
+    assert rows and all(float(r[5]) in (0.0, 1.0) and 0.05 <= float(r[6]) <= 1.0 for r in rows)
+    dets = load_detections(rec, str(tmp_path / "v"), cfg)
+    assert all(len(v) == len({(d.box.x_min, d.box.y_min, d.box.x_max, d.box.y_max) for d in v}) for v in dets.values())
+    assert report.seconds["verify"] > 0 and report.frames == len(rec)
+    assert got and all(len(g[4]) == len(FEATURES) for g in got)
+    # the shortlist: at most verify_top_k pairs per instance and frame
+    per = {}
+    for i, inst, *_ in got:
+        per[(i, inst)] = per.get((i, inst), 0) + 1
+    assert max(per.values()) <= vcfg.frontend.verify_top_k

@@ -26,6 +26,7 @@ from __future__ import annotations
 
 import argparse
 import os
+import re
 import sys
 import tempfile
 import time
@@ -130,6 +131,37 @@ def truth_counts(rec, det_dir) -> tuple[int, int, int, int, int] | None:
     return n_vis, true, n, other, n - true - other
 
 
+def proposal_recall(rec, cfg, source_name: str, caps: list[int], step: int) -> list[tuple[int, float, float, int]]:
+    """Per per-frame cap: (cap, recall, proposals per frame, instances) over every ``step``-th PV frame:
+    the share of instances at least half visible whose true box has a short side >= 24 px that some
+    proposal covers at IoU >= 0.5 (the proposals as ``detect`` makes them: plausible boxes, NMS)."""
+    from egograph.frontend.proposals import iou, keep_plausible, nms, proposal_sources
+    from egograph.steps.detect import read_pv
+
+    with np.load(rec.synth_gt_dir / "instances.npz") as gt:
+        boxes, visible = gt["boxes"], gt["visible"]
+    sources = proposal_sources(rec, cfg.frontend, source_name)
+    hit = {c: 0 for c in caps}
+    count = {c: 0 for c in caps}
+    n_inst = 0
+    for i in range(0, len(rec), step):
+        rgb = read_pv(rec, i)
+        if rgb is None:
+            continue
+        props = []
+        for src in sources:
+            props += keep_plausible(src(i, rgb), rgb.shape[:2], cfg.frontend)
+        want = [b for b, v in zip(boxes[i], visible[i]) if v >= 0.5 and np.isfinite(b[0])
+                and min(b[2] - b[0], b[3] - b[1]) >= 24]
+        n_inst += len(want)
+        for c in caps:
+            kept = nms(props, cfg.frontend.nms_iou, c)
+            count[c] += len(kept)
+            hit[c] += sum(any(iou(b, p.box) >= 0.5 for p in kept) for b in want)
+    frames = len(range(0, len(rec), step))
+    return [(c, hit[c] / max(n_inst, 1), count[c] / max(frames, 1), n_inst) for c in caps]
+
+
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--rec", type=Path, help="an existing recording with pv/ (default: generate one)")
@@ -144,6 +176,10 @@ def main(argv=None) -> int:
     ap.add_argument("--variant", action="append", default=[],
                     help="NAME:KEY=VALUE,... configuration overrides run after each other (repeatable; "
                          "default one run at the defaults)")
+    ap.add_argument("--recall", action="store_true",
+                    help="only proposal recall against proposals per frame, per variant (synthetic recordings)")
+    ap.add_argument("--recall-caps", type=int, nargs="+", default=[12, 24, 48])
+    ap.add_argument("--recall-step", type=int, default=10, help="every this many PV frames")
     benchdoc.add_arguments(ap, __file__)
     args = ap.parse_args(argv)
     benchdoc.start(__file__, args, argv)
@@ -175,9 +211,31 @@ def main(argv=None) -> int:
     effnet.embedded_model_path()
     print(f"EfficientNet-lite0 conversion (first use): {time.perf_counter() - t:.2f} s")
     variants = [v.partition(":") for v in args.variant] or [("defaults", ":", "")]
+    if args.recall:
+        rows = []
+        for name, _, sets in variants:
+            overrides = [kv for kv in re.split(r",(?![^\[]*\])", sets) if kv]
+            vcfg = load_config(EgographConfig, default_config(), overrides)
+            for run in args.runs.split(","):
+                enroll = run.partition(":")[0]
+                source = args.proposals or vcfg.frontend.proposals_for(enroll)
+                t = time.perf_counter()
+                res = proposal_recall(rec, vcfg, source, args.recall_caps, args.recall_step)
+                dt = time.perf_counter() - t
+                for cap, recall, per_frame, n in res:
+                    rows.append([name, source, cap, per_frame, 100 * recall, n, 1000 * dt / max(len(range(0, len(rec), args.recall_step)), 1)])
+                    print(f"[{name}] {source} cap {cap}: {per_frame:.1f} proposals/frame, recall {100 * recall:.1f} % "
+                          f"of {n} instances", flush=True)
+        benchdoc.table("Proposal recall against proposals per frame",
+                       ["variant", "proposals", "cap", "proposals/frame", "recall %", "instances", "proposal ms/frame"],
+                       rows, ["", "", "d", ".1f", ".1f", "d", ".0f"],
+                       note=f"Recording {rec_root.name}, every {args.recall_step}th PV frame; recall: instances at least "
+                            "half visible with a true box short side >= 24 px covered by a proposal at IoU >= 0.5.")
+        benchdoc.finish()
+        return 0
     speed_rows, truth_rows, stages = [], [], []
     for name, _, sets in variants:
-        overrides = [kv for kv in sets.split(",") if kv]
+        overrides = [kv for kv in re.split(r",(?![^\[]*\])", sets) if kv]
         for run in args.runs.split(","):
             enroll, _, pooling = run.partition(":")
             cfg = load_config(EgographConfig, default_config(), overrides)

@@ -64,6 +64,28 @@ def true_share(rec, det_dir) -> tuple[int, int]:
     return int(ok.sum()), len(ok)
 
 
+def detail_2d(rec, det_dir) -> tuple[int, int, int, list, list]:
+    """(visible instance-frames, of them with a true detection, detections on another visible
+    instance (a look-alike confusion), scores, labels) with the rule of :func:`true_share`; visible:
+    at least a quarter visible with a true box. Scores are the files' similarity column, the labels
+    whether each detection is on its instance (for the calibration error)."""
+    import numpy as np
+
+    from egograph.io.detections import read_detection_dir
+
+    m = detections_against_truth(rec, det_dir)
+    on_own = (own_column(m, "visible") >= 0.25) & ((own_column(m, "iou") >= 0.3) | own_column(m, "centre_inside"))
+    on_any = ((m["visible"] >= 0.25) & ((m["iou"] >= 0.3) | m["centre_inside"])).any(axis=1)
+    dets = read_detection_dir(det_dir, rec.timestamps)
+    scores = [d.score for ts in rec.timestamps for d in dets[int(ts)]]
+    with np.load(rec.synth_gt_dir / "instances.npz") as gt:
+        vis = (gt["visible"] >= 0.25) & np.isfinite(gt["boxes"][..., 0])
+    frame = np.repeat(np.arange(len(rec)), [len(dets[int(ts)]) for ts in rec.timestamps])
+    pairs = {(int(f), int(k)) for f, k, ok in zip(frame, m["instance"], on_own) if ok}
+    found = sum(1 for f, k in pairs if k < vis.shape[1] and vis[f, k])
+    return int(vis.sum()), found, int((on_any & ~on_own).sum()), scores, on_own.tolist()
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--seeds", type=int, nargs="+", default=[21, 22])
@@ -79,6 +101,9 @@ def main() -> None:
     ap.add_argument("--adapt-rounds", type=int, default=0, metavar="K",
                     help="rounds of the tracker teaching the front-end (egograph detect --adapt), each taught by "
                          "the graph's results on the round before")
+    ap.add_argument("--variant", action="append", default=[], metavar="NAME:KEY=VALUE,...",
+                    help="another front-end configuration detected and tracked in the same run, beside the "
+                         "current one (repeatable), e.g. verify:frontend.verify=all")
     ap.add_argument("--config", type=config_argument, default=default_config(),
                     help="egograph configuration: a YAML file or a packaged name (e.g. frontend-mvpe; default: default)")
     ap.add_argument("--set", dest="overrides", action="append", default=[], metavar="KEY=VALUE",
@@ -91,9 +116,15 @@ def main() -> None:
     roots = rgb_benchmark_set(args.seeds, args.frames, config=synth_config("svoe"), cache=args.cache)
     base = load_config(EgographConfig, args.config, args.overrides)
     radius = base.frontend.guidance_radius_px
+    import re
+
+    variants = [(n, [kv for kv in re.split(r",(?![^\[]*\])", v) if kv]) for n, _, v in
+                (x.partition(":") for x in args.variant)]
+    vtime: dict = {}
     pooled: dict = {}
     shares: dict = {}
     two_d: dict = {}  # (source, set) -> list of Track2dScores, one per recording
+    details: dict = {}  # (source, set) -> [visible, found, confusions, scores, labels, per recording]
     t_detect, frames = 0.0, 0
     per_rec: dict = {}     # (source, set, label) -> recording -> Counts
     rounds: dict = {}      # (source, set) -> recording -> {"holdback", "fit_s", "detect_s", "frames", "heads"}
@@ -106,6 +137,18 @@ def main() -> None:
                 t_detect += time.perf_counter() - t
                 frames += len(rec)
             sources = [("simulated", det_set, rec.detections_dir(det_set)), ("detect", str(out), out)]
+            for vname, vsets in variants:
+                # another front-end configuration, detected on the same recording in this run
+                vcfg = load_config(EgographConfig, args.config, [*args.overrides, *vsets])
+                out_v = args.cache / "detect" / args.tag / root.name / f"{det_set}_{vname}"
+                t = time.perf_counter()
+                rep_v = detect(rec, det_set, vcfg, out_v, progress=True)
+                if rep_v is not None:
+                    vtime.setdefault(vname, [0.0, 0])
+                    vtime[vname][0] += time.perf_counter() - t
+                    vtime[vname][1] += len(rec)
+                    print(f"{root.name} {det_set} [{vname}]:\n{rep_v.summary()}", flush=True)
+                sources.append((f"detect [{vname}]", str(out_v), out_v))
             if args.no_simulated:
                 sources = sources[1:]
             if det_set == "svoe" and not args.no_sot:
@@ -119,14 +162,24 @@ def main() -> None:
                 a, b = shares.get((source, det_set), (0, 0))
                 tr, tot = true_share(rec, folder)
                 shares[(source, det_set)] = (a + tr, b + tot)
+                d2 = detail_2d(rec, folder)
+                acc = details.setdefault((source, det_set), [0, 0, 0, [], [], {}])
+                for j in range(3):
+                    acc[j] += d2[j]
+                acc[3] += d2[3]
+                acc[4] += d2[4]
+                acc[5][root.name] = (tr, tot, d2[1], d2[0], d2[2])
                 two_d.setdefault((source, det_set), []).append(eval_2d(rec, folder, base))
                 for label, tracker, mode in PIPELINES:
                     if source.startswith("SOT") and tracker != "memory":
                         continue  # the paper's SOT row: its boxes lifted and kept in memory
                     if args.no_causal and tracker == "graph-causal":
                         continue
-                    cfg = load_config(EgographConfig, args.config, [*args.overrides, f"lift.mode={mode}"])
+                    vsets = dict(variants).get(source[8:-1], []) if source.startswith("detect [") else []
+                    cfg = load_config(EgographConfig, args.config, [*args.overrides, *vsets, f"lift.mode={mode}"])
                     tag = source.split()[0].lower() + ("_g" if "guidance" in source else "")
+                    if source.startswith("detect ["):
+                        tag = "v_" + source[8:-1]
                     if source.startswith("detect + adapt"):
                         tag = "adapt_" + source.rsplit(" ", 1)[1]
                     try:
@@ -174,6 +227,8 @@ def main() -> None:
                                progress=False)
                         sources.append(("detect + 3D guidance", str(out_g), out_g))
     speed = f"detect {frames / t_detect:.1f} frames/s over {frames} frames" if frames else "detections cached"
+    for vname, (sec, n) in vtime.items():
+        speed += f"; [{vname}] {n / sec:.1f} frames/s over {n} frames"
     print(f"\nRGB recordings: seeds {', '.join(map(str, args.seeds))} x {args.frames} frames; {speed}\n")
     rows = []
     for (source, det_set, label), c in pooled.items():
@@ -184,6 +239,22 @@ def main() -> None:
                    ["source", "set", "true / all detections", "tracker", "P@0.25", "P@1.5", "R@0.25", "R@1.5", "L2 (m)"],
                    rows, ["", "", "{0} / {1} ({2:.0f} %)", "", ".1f", ".1f", ".1f", ".1f", ".2f"],
                    note=f"RGB recordings: seeds {', '.join(map(str, args.seeds))} x {args.frames} frames; {speed}.")
+    from egograph.frontend.verify import expected_calibration_error
+
+    rows = []
+    for (source, det_set), (vis, found, conf, sc, lab, per) in details.items():
+        tr, tot = shares[(source, det_set)]
+        rows.append([source, det_set, [tr, tot, 100 * tr / max(tot, 1)], [found, vis, 100 * found / max(vis, 1)], conf,
+                     expected_calibration_error(sc, lab),
+                     "; ".join(f"{n}: {a}/{b}, found {c}/{d}, conf {e}" for n, (a, b, c, d, e) in per.items())])
+    benchdoc.table("Detections against the generator's truth",
+                   ["source", "set", "on the instance / emitted", "visible instance-frames found", "look-alike confusions",
+                    "ECE of the score", "per recording"], rows,
+                   ["", "", "{0} / {1} ({2:.1f} %)", "{0} / {1} ({2:.1f} %)", "d", ".3f", ""],
+                   note="On the instance: at least a quarter visible, IoU >= 0.3 with its true box or the box centre "
+                        "inside it; visible instance-frames: at least a quarter visible; confusions: detections on "
+                        "another instance's box; ECE: the similarity column (a probability under verification) against "
+                        "on-the-instance, 10 bins.")
     rows = []
     for (source, det_set), evals in two_d.items():
         n = sum(r.n for r in evals)

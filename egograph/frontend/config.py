@@ -137,6 +137,20 @@ class FrontendConfig(Checked):
     seg_sigma: float = knob(0.8, "image: graph segmentation Gaussian sigma, pixels at image_scale", gt=0.0)
     seg_k: float = knob(300.0, "image: graph segmentation k (larger: larger segments)", gt=0.0)
     seg_min_size: int = knob(40, "image: graph segmentation minimum segment size, pixels at image_scale", min=1)
+    image_k_scales: list = knob([], "image: graph segmentation k of each scale of segments (e.g. [100, 300, "
+                                    "1000]: small, medium and large segments); empty = seg_k alone. Each "
+                                    "scale's segments are ranked by objectness (colour contrast of the box "
+                                    "against its surround, times how much of the box the segment fills: no "
+                                    "preference for size) and capped at image_per_scale. Proposal recall (instances "
+                                    "at least half visible, short side >= 24 px, covered at IoU >= 0.5; geometry+image, "
+                                    "every 10th frame of held-out recordings 21-22, 111 instances): one scale 41 % at "
+                                    "12 proposals/frame, 54 % at 24, 68 % at 46; [100, 300, 1000] x 8 per scale 68 % at "
+                                    "12, 79 % at 21, 82 % at 24 (chosen on tuning seed 27 among 3 x 8, 3 x 12, 4 x 10, "
+                                    "and image_scale 0.5). Its effect on the detections is not measured yet: off by "
+                                    "default", gt=0.0)
+    image_per_scale: int = knob(0, "image: most segments kept per scale, the most object-like first (0 = all, "
+                                   "the confidence of every image segment 0.5 and the larger first, as before)",
+                                min=0)
     mask_threshold: float = knob(0.5, "ONNX mask model: a mask pixel belongs to the object at this "
                                       "probability or more", min=0.0, max=1.0)
     guidance_radius_px: float = knob(150.0, "3D guidance (egograph detect --guide): among the above-threshold "
@@ -144,6 +158,52 @@ class FrontendConfig(Checked):
                                             "estimate if within this radius, else the most similar; PV pixels, "
                                             "0 = off. 150 chosen from 50/150/400 on two tuning recordings (guided "
                                             "by graph-causal, SVOE graph P@0.25 20.1/25.0/19.9)", min=0.0)
+
+    # verification (egograph.frontend.verify)
+    verify: str = knob("none", "verify shortlisted proposals by local features for these enrollments ('none', "
+                               "'svoe', 'mvpe', 'all'): the embedding shortlists verify_top_k proposals per instance, "
+                               "each is verified against every enrollment view (RootSIFT, ratio test, RANSAC "
+                               "homography), and the similarity column becomes a calibrated probability that the box "
+                               "is the instance (det_conf 1: verified by local features; 0: the crop had too few "
+                               "keypoints, scored without them). A proposal goes to one instance only (the most "
+                               "probable)", choices=EXCLUSIVE_SETS)
+    verify_top_k: int = knob(3, "verification: proposals per instance and frame shortlisted by the embedding "
+                                "(the plain cosine, or the whitened one under whitening)", min=1)
+    verify_threshold: float = knob(0.3, "verification: least probability of an emitted detection. On the tuning "
+                                        "recordings (27-28, every 5th frame) the shortlisted pairs at 0.3 or more were "
+                                        "72 % (SVOE, 32 pairs) and 100 % (MVPE, 12) on the instance, at 0.2 45 % and 49 %; "
+                                        "MVPE reached no probability above 0.33. The trackers' score_threshold (0.6) "
+                                        "drops detections below it: track verified detections with --set "
+                                        "graph.score_threshold=0.3 (and track.score_threshold for the baselines)",
+                                   min=0.0, max=1.0)
+    verify_side_px: int = knob(160, "verification: crops and enrollment views are resampled so that their longer "
+                                    "side is this many pixels before SIFT (small crops enlarged)", min=32)
+    verify_max_keypoints: int = knob(300, "verification: most SIFT keypoints per crop or view", min=8)
+    verify_max_views: int = knob(12, "verification: most enrollment views per instance verified against "
+                                     "(evenly spread over its photos; SVOE has 4)", min=1)
+    verify_ratio: float = knob(0.8, "verification: Lowe's ratio test, nearest over second-nearest descriptor "
+                                    "distance", gt=0.0, max=1.0)
+    verify_reproj_px: float = knob(6.0, "verification: RANSAC inlier distance, pixels at verify_side_px", gt=0.0)
+    verify_max_scale: float = knob(4.0, "verification: a homography whose scale between view and crop (relative to "
+                                        "their sides) is off by more than this factor is no match", gt=1.0)
+    verify_enough: int = knob(30, "verification: inliers after which no further view is tried (speed)", min=4)
+    verify_min_keypoints: int = knob(8, "verification: a crop with fewer keypoints has nothing to verify and is "
+                                        "scored by the fallback model", min=0)
+    verify_min_side_px: int = knob(40, "verification: a crop whose short side (PV pixels) is below this is scored "
+                                       "by the fallback model (local features find few keypoints on it)", min=0)
+    verify_coef_svoe: list = knob([-6.4277, 2.1143, 1.7482, 2.1374, 0.174, 0.3746, 0.136, 3.6216],
+                                  "verification, SVOE: logistic coefficients [bias, cosine, cosine_margin, whitened, "
+                                  "log_inliers, spread, inlier_margin, colour], fitted by tools/fit_verify.py --seeds "
+                                  "27 28 --frames 500 --stride 5 (4500 shortlisted pairs, 2.6 % on the instance; "
+                                  "training ECE 0.004)", length=8)
+    verify_coef_mvpe: list = knob([-5.5025, 4.2563, 4.8134, 0.0, 0.4409, -0.224, -0.0856, 2.0391],
+                                  "verification, MVPE: logistic coefficients, as verify_coef_svoe (3488 pairs, 3.7 % "
+                                  "on the instance; training ECE 0.018)", length=8)
+    verify_fallback_svoe: list = knob([-6.4831, 1.0971, 1.189, 3.1933, 4.4765],
+                                      "verification, SVOE crops without keypoints: [bias, cosine, cosine_margin, "
+                                      "whitened, colour] (fitted as verify_coef_svoe, on every pair)", length=5)
+    verify_fallback_mvpe: list = knob([-6.9517, 6.5404, 4.8738, 0.0, 1.7001],
+                                      "verification, MVPE crops without keypoints: as verify_fallback_svoe", length=5)
 
     def proposals_for(self, enroll: str) -> str:
         """The proposal source of an enrollment (``svoe`` | ``mvpe``): ``mvpe_proposals`` for MVPE

@@ -24,6 +24,27 @@ EMBEDDED_SIDE = 224    # the embedded EfficientNet-lite0 at its training side: 1
                        # its cosines run lower and MVPE at the 0.6 threshold lost most detections (README)
 
 
+def as_rgb(image: np.ndarray, order: str = "rgb", what: str = "crop") -> np.ndarray:
+    """``image`` as (H, W, 3) uint8 RGB: a grey (H, W) or (H, W, 1) image is repeated over the three
+    channels, RGBA / BGRA lose their alpha, ``order`` 'bgr' (OpenCV's) is swapped to RGB. Anything
+    else (another dtype, another channel count) raises ValueError naming what it got: an image in
+    the wrong colour order or range is never embedded silently wrong."""
+    a = np.asarray(image)
+    if order not in ("rgb", "bgr"):
+        raise ValueError(f"{what}: colour order {order!r}; expected 'rgb' or 'bgr'")
+    if a.dtype != np.uint8:
+        raise ValueError(f"{what}: dtype {a.dtype}; expected uint8 pixels 0-255 (convert float images with "
+                         "np.clip(x * 255, 0, 255).astype(np.uint8))")
+    if a.ndim == 3 and a.shape[2] == 1:
+        a = a[:, :, 0]
+    if a.ndim == 2:
+        return np.repeat(a[:, :, None], 3, axis=2)
+    if a.ndim != 3 or a.shape[2] not in (3, 4):
+        raise ValueError(f"{what}: shape {a.shape}; expected (H, W) grey, (H, W, 3) colour or (H, W, 4) with alpha")
+    a = a[:, :, :3]
+    return np.ascontiguousarray(a[:, :, ::-1] if order == "bgr" else a)
+
+
 @dataclass
 class Preprocess:
     """How a crop (H, W, 3) uint8 RGB becomes one encoder input: resized to ``size`` x ``size``
@@ -40,9 +61,12 @@ class Preprocess:
     def from_config(cls, cfg: FrontendConfig) -> "Preprocess":
         return cls(cfg.input_size, tuple(cfg.mean), tuple(cfg.std), cfg.layout, cfg.resize)
 
-    def __call__(self, crops: list[np.ndarray]) -> np.ndarray:
-        """``crops`` -> float32 batch (N, 3, S, S) or (N, S, S, 3)."""
+    def __call__(self, crops: list[np.ndarray], order: str = "rgb") -> np.ndarray:
+        """``crops`` (each converted by :func:`as_rgb`: grey, RGBA, ``order`` 'bgr' made RGB; other
+        inputs refused) -> float32 batch (N, 3, S, S) or (N, S, S, 3)."""
         import cv2
+
+        crops = [as_rgb(c, order, f"crop {k}") for k, c in enumerate(crops)]
 
         s = self.size
         mean = np.asarray(self.mean, np.float32)
@@ -161,12 +185,13 @@ class OnnxEncoder:
                                         f"{x.shape[0]}; expected (N, D) or (N, T, D)")
         return y
 
-    def embed(self, crops: list[np.ndarray]) -> np.ndarray:
-        """Unit-norm embeddings (N, D) float32 of RGB uint8 crops (any size)."""
+    def embed(self, crops: list[np.ndarray], order: str = "rgb") -> np.ndarray:
+        """Unit-norm embeddings (N, D) float32 of uint8 crops (any size): RGB, or BGR with ``order``
+        'bgr'; grey and RGBA crops are converted, anything else refused (:func:`as_rgb`)."""
         if not crops:
             return np.zeros((0, getattr(self, "dim", 0)), np.float32)
         step = 1 if self.fixed_batch else self.batch
-        rows = [self._run(self.pre(crops[k:k + step])) for k in range(0, len(crops), step)]
+        rows = [self._run(self.pre(crops[k:k + step], order)) for k in range(0, len(crops), step)]
         y = np.concatenate(rows)
         return y / np.maximum(np.linalg.norm(y, axis=1, keepdims=True), 1e-12)
 

@@ -185,7 +185,9 @@ class GeometryProposals:
 
 
 class ImageProposals:
-    """Boxes of OpenCV graph-segmentation segments (``cv2.ximgproc``, the contrib package)."""
+    """Boxes of OpenCV graph-segmentation segments (``cv2.ximgproc``, the contrib package), at one
+    scale (``seg_k``) or several (``image_k_scales``); with ``image_per_scale`` each scale keeps its
+    most object-like segments (:func:`objectness`), which is then their confidence."""
 
     def __init__(self, cfg: FrontendConfig):
         import cv2
@@ -194,26 +196,74 @@ class ImageProposals:
             raise InputError(Path(cv2.__file__), "image proposals need OpenCV's contrib modules: "
                                                  "pip install opencv-contrib-python-headless")
         self.cfg = cfg
-        self.seg = cv2.ximgproc.segmentation.createGraphSegmentation(cfg.seg_sigma, cfg.seg_k, cfg.seg_min_size)
+        ks = cfg.image_k_scales or [cfg.seg_k]
+        self.segs = [cv2.ximgproc.segmentation.createGraphSegmentation(cfg.seg_sigma, float(k), cfg.seg_min_size)
+                     for k in ks]
 
     def __call__(self, rgb: np.ndarray) -> list[Proposal]:
         import cv2
 
         s = self.cfg.image_scale
         small = cv2.resize(rgb, None, fx=s, fy=s, interpolation=cv2.INTER_AREA)
-        labels = self.seg.processImage(cv2.cvtColor(small, cv2.COLOR_RGB2BGR)).ravel()
-        n = int(labels.max()) + 1
+        bgr = cv2.cvtColor(small, cv2.COLOR_RGB2BGR)
         rows, cols = small.shape[:2]
         vs, us = np.divmod(np.arange(rows * cols), cols)
-        # every segment's bounding box in one pass over the pixels (not one mask per segment)
-        lo_u, lo_v = np.full(n, cols), np.full(n, rows)
-        hi_u, hi_v = np.full(n, -1), np.full(n, -1)
-        np.minimum.at(lo_u, labels, us)
-        np.minimum.at(lo_v, labels, vs)
-        np.maximum.at(hi_u, labels, us)
-        np.maximum.at(hi_v, labels, vs)
-        return [Proposal((lo_u[k] / s, lo_v[k] / s, (hi_u[k] + 1) / s, (hi_v[k] + 1) / s), "image", 0.5)
-                for k in np.nonzero(hi_u >= 0)[0]]
+        ranked = self.cfg.image_per_scale > 0
+        lab_sum = integral_lab(small) if ranked else None
+        out = []
+        for seg in self.segs:
+            labels = seg.processImage(bgr).ravel()
+            n = int(labels.max()) + 1
+            # every segment's bounding box in one pass over the pixels (not one mask per segment)
+            lo_u, lo_v = np.full(n, cols), np.full(n, rows)
+            hi_u, hi_v = np.full(n, -1), np.full(n, -1)
+            np.minimum.at(lo_u, labels, us)
+            np.minimum.at(lo_v, labels, vs)
+            np.maximum.at(hi_u, labels, us)
+            np.maximum.at(hi_v, labels, vs)
+            ok = np.nonzero(hi_u >= 0)[0]
+            box = np.column_stack([lo_u[ok], lo_v[ok], hi_u[ok] + 1, hi_v[ok] + 1]).astype(np.float64)
+            if ranked:
+                fill = np.bincount(labels, minlength=n)[ok] / np.maximum((box[:, 2] - box[:, 0]) * (box[:, 3] - box[:, 1]), 1)
+                conf = objectness(lab_sum, box) * np.sqrt(fill)
+                order = np.argsort(-conf, kind="stable")[:self.cfg.image_per_scale]
+            else:
+                conf, order = np.full(len(ok), 0.5), np.arange(len(ok))
+            out += [Proposal(tuple(float(v) for v in box[j] / s), "image", float(conf[j])) for j in order]
+        return out
+
+
+def integral_lab(rgb: np.ndarray) -> np.ndarray:
+    """Integral image (H + 1, W + 1, 3) of the CIE Lab colours of ``rgb`` (L 0-100, a and b about -128-127)."""
+    import cv2
+
+    lab = cv2.cvtColor(rgb.astype(np.float32) / 255.0, cv2.COLOR_RGB2LAB)
+    out = np.zeros((lab.shape[0] + 1, lab.shape[1] + 1, 3), np.float64)
+    out[1:, 1:] = lab.cumsum(0).cumsum(1)
+    return out
+
+
+def _box_sum(ii: np.ndarray, b: np.ndarray) -> np.ndarray:
+    x1, y1, x2, y2 = (b[:, k].astype(int) for k in range(4))
+    return ii[y2, x2] - ii[y1, x2] - ii[y2, x1] + ii[y1, x1]
+
+
+def objectness(ii: np.ndarray, box: np.ndarray) -> np.ndarray:
+    """How much each box (N, 4; pixels of the image of the integral ``ii``) stands out from its
+    surround: the Lab distance between the box's mean colour and the mean colour of the ring
+    around it (the box grown by half its side each way, clipped), mapped to 0-1 by ``1 - exp(-d /
+    20)``. Means, not sums: a large box gains nothing by its size."""
+    rows, cols = ii.shape[0] - 1, ii.shape[1] - 1
+    w, h = box[:, 2] - box[:, 0], box[:, 3] - box[:, 1]
+    outer = np.column_stack([np.clip(box[:, 0] - w / 2, 0, cols), np.clip(box[:, 1] - h / 2, 0, rows),
+                             np.clip(box[:, 2] + w / 2, 0, cols), np.clip(box[:, 3] + h / 2, 0, rows)]).round()
+    inner = box.round()
+    a_in = np.maximum((inner[:, 2] - inner[:, 0]) * (inner[:, 3] - inner[:, 1]), 1)[:, None]
+    a_out = ((outer[:, 2] - outer[:, 0]) * (outer[:, 3] - outer[:, 1]))[:, None] - a_in
+    s_in, s_out = _box_sum(ii, inner), _box_sum(ii, outer)
+    ring = (s_out - s_in) / np.maximum(a_out, 1)
+    d = np.linalg.norm(s_in / a_in - ring, axis=1)
+    return np.where(a_out[:, 0] > 0, 1.0 - np.exp(-d / 20.0), 0.0)
 
 
 # --------------------------------------------------------------------------- ONNX mask model

@@ -79,8 +79,10 @@ class DetectReport:
 # --------------------------------------------------------------------------- enrollment
 
 
-def enroll_svoe(rec: Recording, encoder, cfg, report: DetectReport, n_labels: int = 0) -> dict[int, np.ndarray]:
-    """Views of each instance's ``svoe.txt`` box (see :func:`egograph.frontend.matching.svoe_views`)."""
+def enroll_svoe(rec: Recording, encoder, cfg, report: DetectReport, n_labels: int = 0,
+                images: dict | None = None) -> dict[int, np.ndarray]:
+    """Views of each instance's ``svoe.txt`` box (see :func:`egograph.frontend.matching.svoe_views`);
+    ``images``, when given, receives each instance's view crops (RGB) for verification."""
     from egograph.frontend.matching import svoe_views
     from egograph.io.annotations import load_annotations
     from egograph.steps.recording import require_svoe
@@ -109,14 +111,18 @@ def enroll_svoe(rec: Recording, encoder, cfg, report: DetectReport, n_labels: in
             continue
         crops = svoe_views(rgb, (x1, y1, x2, y2), cfg)
         views[e.instance] = encoder.embed(crops)
+        if images is not None:
+            images[e.instance] = crops
     for inst in range(n_labels):
         if inst not in views and inst not in report.not_enrolled:
             report.not_enrolled[inst] = (str(path), "no box for this instance")
     return views
 
 
-def enroll_mvpe(rec: Recording, encoder, cfg, names: list[str], report: DetectReport) -> dict[int, np.ndarray]:
-    """Embeddings of each instance's photos (``<mvpe>/<instance_name>/*.jpg``, at most ``mvpe_max_photos``)."""
+def enroll_mvpe(rec: Recording, encoder, cfg, names: list[str], report: DetectReport,
+                images: dict | None = None) -> dict[int, np.ndarray]:
+    """Embeddings of each instance's photos (``<mvpe>/<instance_name>/*.jpg``, at most ``mvpe_max_photos``);
+    ``images``, when given, receives each instance's photos (RGB) for verification."""
     import cv2
 
     from egograph.frontend.matching import autocrop
@@ -146,6 +152,8 @@ def enroll_mvpe(rec: Recording, encoder, cfg, names: list[str], report: DetectRe
             report.not_enrolled[inst] = (str(Path(look.found) / name), why)
             continue
         views[inst] = encoder.embed(crops)
+        if images is not None:
+            images[inst] = crops
     return views
 
 
@@ -244,6 +252,8 @@ class FrameDetector:
         self.stored: dict[int, tuple[list, np.ndarray]] | None = None   # every frame's, read from a file
         self.seen: dict[int, tuple[list, np.ndarray]] = {}              # what this pass embedded (to save)
         self.embedded: dict[int, tuple[list, np.ndarray]] = {}   # frame -> its proposals and embeddings, if done
+        self.verifier = None         # verification (egograph.frontend.verify), after use_verification
+        self.collect: list | None = None   # with a list: every verified pair's features (tools/fit_verify.py)
 
     def use_whitening(self, whitening) -> None:
         """Match with ``whitening`` (:mod:`egograph.frontend.whiten`; None: plain cosine only)."""
@@ -253,6 +263,78 @@ class FrameDetector:
         if whitening is not None:
             self.white = Enrollment({k: whitening(v) for k, v in self.enrollment.views.items()},
                                     self.enrollment.pooling)
+
+    def use_verification(self, images: dict[int, list[np.ndarray]], enroll: str) -> None:
+        """Verify shortlisted proposals against the enrollment ``images`` (instance -> RGB views) and
+        write the calibrated probability (:mod:`egograph.frontend.verify`; ``enroll`` picks the
+        coefficients)."""
+        from egograph.frontend.verify import Verifier
+
+        t0 = time.perf_counter()
+        self.verifier = Verifier(self.cfg)
+        self.verify_views = {}
+        for inst, ims in images.items():
+            pick_ = np.unique(np.linspace(0, len(ims) - 1, min(len(ims), self.cfg.verify_max_views)).round().astype(int))
+            self.verify_views[inst] = [self.verifier.features(ims[k]) for k in pick_]
+        self.coef = (self.cfg.verify_coef_svoe, self.cfg.verify_fallback_svoe) if enroll == "svoe" else \
+            (self.cfg.verify_coef_mvpe, self.cfg.verify_fallback_mvpe)
+        self.report.seconds["verify"] = self.report.seconds.get("verify", 0.0) + time.perf_counter() - t0
+
+    def _verified_rows(self, i, rgb, kept, boxes, plain, white, guides) -> list:
+        """Verification (see :mod:`egograph.frontend.verify`): per instance its ``verify_top_k``
+        proposals by embedding; each verified against the instance's views; the calibrated
+        probability; a proposal goes to the instance it is most probably (exclusive); per instance
+        the most probable at ``verify_threshold`` or more (or, with a guide, the nearest such)."""
+        from egograph.frontend.matching import crop, pick
+        from egograph.frontend.verify import fallback_rows, feature_rows, probability, textured
+
+        cfg, t0 = self.cfg, time.perf_counter()
+        ids = sorted(plain)
+        table = np.stack([plain[k] for k in ids])                   # (K, P)
+        rank = np.stack([white[k] for k in ids]) if white is not None else table
+        n_p = table.shape[1]
+        top = np.argsort(-rank, axis=1, kind="stable")[:, :cfg.verify_top_k]
+        feats, shapes = {}, {}
+        for k in np.unique(top):
+            c = crop(rgb, boxes[k], cfg.crop_margin)
+            feats[int(k)] = self.verifier.features(c)
+            shapes[int(k)] = c.shape[:2]
+        inl = np.zeros((len(ids), n_p))
+        spread = np.zeros((len(ids), n_p))
+        colour = np.zeros((len(ids), n_p))
+        for a, inst in enumerate(ids):
+            for k in top[a]:
+                inl[a, k], spread[a, k], colour[a, k] = self.verifier.best(feats[int(k)], self.verify_views.get(inst, []))
+        listed = np.zeros((len(ids), n_p), bool)
+        listed[np.repeat(np.arange(len(ids)), top.shape[1]), top.ravel()] = True
+        prob = np.zeros((len(ids), n_p))
+        rows_out = []
+        for a, inst in enumerate(ids):
+            ks = top[a]
+            others = np.delete(table, a, axis=0)
+            cos_margin = table[a, ks] - (others[:, ks].max(axis=0) if len(others) else 0.0)
+            other_inl = np.delete(np.where(listed, inl, 0.0), a, axis=0)
+            inl_margin = inl[a, ks] - (other_inl[:, ks].max(axis=0) if len(other_inl) else 0.0)
+            w = rank[a, ks] if white is not None else np.zeros(len(ks))
+            x = feature_rows(table[a, ks], cos_margin, w, inl[a, ks], spread[a, ks], inl_margin, colour[a, ks])
+            tex = np.array([textured(feats[int(k)], shapes[int(k)], cfg) for k in ks])
+            p = np.where(tex, probability(x, self.coef[0]), probability(fallback_rows(x), self.coef[1]))
+            prob[a, ks] = p
+            if self.collect is not None:
+                for j, k in enumerate(ks):
+                    self.collect.append((i, inst, tuple(boxes[k]), bool(tex[j]), x[j]))
+            rows_out.append((a, inst, ks, tex))
+        owner = np.argmax(prob, axis=0)
+        rows = []
+        for a, inst, ks, tex in rows_out:
+            s = np.where(owner == a, prob[a], -np.inf)
+            s = np.where(listed[a], s, -np.inf)
+            k = pick(s, boxes, cfg.verify_threshold, (guides or {}).get(inst), cfg.guidance_radius_px)
+            if k is not None:
+                verified = bool(tex[list(ks).index(k)])
+                rows.append((inst, kept[k].box, 1.0 if verified else 0.0, float(prob[a, k])))
+        self.report.seconds["verify"] = self.report.seconds.get("verify", 0.0) + time.perf_counter() - t0
+        return rows
 
     def use_head(self, head, adapt_cfg) -> None:
         """Score proposals with the adapted logit (:func:`egograph.frontend.adapt.adapted_logits`):
@@ -338,16 +420,20 @@ class FrameDetector:
     def __call__(self, i: int, rgb: np.ndarray, guides: dict | None = None) -> list[tuple[int, tuple, float, float]]:
         kept, emb = self.embedded.pop(i) if i in self.embedded else self.embed_proposals(i, rgb)
         t3 = time.perf_counter()
+        v0 = self.report.seconds.get("verify", 0.0)
         rows = []
         if kept:
             boxes = [p.box for p in kept]
             plain = self.enrollment.similarity(emb)
             white = self.white.similarity(self.whitening(emb)) if self.whitening is not None else None
-            if self.head is not None:
+            if self.verifier is not None:
+                rows = self._verified_rows(i, rgb, kept, boxes, plain, white, guides)
+            elif self.head is not None:
                 rows = self._adapted_rows(kept, boxes, emb, plain, white, guides)
             else:
                 rows = self._plain_rows(kept, boxes, plain, white, guides)
-        self.report.seconds["matching"] += time.perf_counter() - t3
+        # verification is timed as its own stage
+        self.report.seconds["matching"] += time.perf_counter() - t3 - (self.report.seconds.get("verify", 0.0) - v0)
         self.report.proposals += len(kept)
         return sorted(rows)
 
@@ -480,14 +566,17 @@ def encoder_id(cfg, encoder_path: str | Path | None) -> dict:
         return {"path": str(p)}
 
 
-def enroll_views(rec: Recording, enroll: str, enc, cfg, report: DetectReport) -> dict[int, np.ndarray]:
+def enroll_views(rec: Recording, enroll: str, enc, cfg, report: DetectReport,
+                 images: dict | None = None) -> dict[int, np.ndarray]:
     """The enrollment views of ``enroll`` (svoe | mvpe) embedded by ``enc``, instances that could not
-    be enrolled reported (an error under ``--strict``); an error when none could be."""
+    be enrolled reported (an error under ``--strict``); an error when none could be. ``images``, when
+    given, receives the view images (RGB) per instance."""
     require_annotations(rec, "instance labels for detection")
     names = read_labels(rec) or []
     report.names = names
     fcfg = cfg.frontend
-    views = enroll_svoe(rec, enc, fcfg, report, len(names)) if enroll == "svoe" else enroll_mvpe(rec, enc, fcfg, names, report)
+    views = enroll_svoe(rec, enc, fcfg, report, len(names), images) if enroll == "svoe" else \
+        enroll_mvpe(rec, enc, fcfg, names, report, images)
     for inst, (where, why) in report.not_enrolled.items():
         report_problem(rec.strict, where, f"instance {inst} ({report.name(inst)}) not enrolled: {why}")
     if not views:
@@ -514,7 +603,7 @@ def adapt_input(rec: Recording, adapt) -> tuple[object, dict | bool]:
 def detect(rec: Recording, enroll: str, cfg, out: str | Path, *, encoder: str | Path | None = None,
            proposals: str | None = None, guide_world: dict[int, np.ndarray] | None = None,
            adapt=None, embeddings: str | Path | None = None, overwrite: bool = False,
-           progress: bool = True) -> DetectReport | None:
+           progress: bool = True, collect: list | None = None, frames=None) -> DetectReport | None:
     """Detect the instances enrolled by ``enroll`` (``svoe`` or ``mvpe``) in every PV frame of
     ``rec``, writing the folder ``out`` (see module doc). ``encoder``/``proposals`` override
     ``cfg.frontend.encoder``/``.proposals`` (``.mvpe_proposals`` for MVPE when set);
@@ -526,7 +615,10 @@ def detect(rec: Recording, enroll: str, cfg, out: str | Path, *, encoder: str | 
     it holds this recording's under the same front-end knobs and encoder, else written after the pass
     (rounds of adaptation detect again on the same proposals: only the scoring changes). Returns the
     report, or None when ``out`` already holds this exact run. Nothing enrolled, no PV image, a bad
-    encoder or a teacher with nothing to teach raise before anything is written."""
+    encoder or a teacher with nothing to teach raise before anything is written. ``collect``: a list
+    that receives, under verification, every shortlisted (frame, instance, box, textured, features)
+    (``tools/fit_verify.py`` fits the coefficients on it); ``frames``: detect in these PV frame
+    indices only (benchmarks and fits on a sample; the other frames get no file)."""
     from tqdm import tqdm
 
     from egograph.frontend.encoder import load_encoder
@@ -541,6 +633,8 @@ def detect(rec: Recording, enroll: str, cfg, out: str | Path, *, encoder: str | 
     inputs = {"recording": outputs.recording_digest(rec), "enroll": enroll, "encoder": encoder_id(cfg, encoder),
               "proposals": source_name, "guided": guide_digest(guide_world) or False}
     depends = {"frontend": to_dict(fcfg), "io": to_dict(cfg.io)}
+    if frames is not None:   # a sample of the frames is another run than the whole recording
+        inputs["frames"] = [int(i) for i in frames]
     if adapt_id:   # unadapted runs keep the fingerprint they had before adaptation existed
         inputs["adapt"] = adapt_id
         depends["adapt"] = {k: v for k, v in to_dict(cfg.adapt).items() if k not in RUN_LEVEL_ADAPT_KNOBS}
@@ -549,7 +643,8 @@ def detect(rec: Recording, enroll: str, cfg, out: str | Path, *, encoder: str | 
         return None
     report = DetectReport()
     enc = load_encoder(fcfg, encoder)
-    views = enroll_views(rec, enroll, enc, cfg, report)
+    images: dict | None = {} if fcfg.verify in ("all", enroll) and teacher is None else None
+    views = enroll_views(rec, enroll, enc, cfg, report, images)
     enrollment = Enrollment(views, fcfg.mvpe_pooling)
     sources = proposal_sources(rec, fcfg, source_name)
     run = FrameDetector(rec, fcfg, enc, enrollment, sources, report, exclusive=fcfg.exclusive in ("all", enroll))
@@ -559,6 +654,9 @@ def detect(rec: Recording, enroll: str, cfg, out: str | Path, *, encoder: str | 
         run.stored = stored
     if fcfg.whiten in ("all", enroll):
         run.use_whitening(background_whitening(rec, run, fcfg, report))
+    if images is not None:
+        run.use_verification(images, enroll)
+        run.collect = collect
     adaptation = None
     if teacher is not None:
         from egograph.steps.adapt import Adaptation, fit_adaptation
@@ -577,15 +675,18 @@ def detect(rec: Recording, enroll: str, cfg, out: str | Path, *, encoder: str | 
     # proposals and encoder run: "read" is only the time spent waiting for it
     with ThreadPoolExecutor(1) as pool:
         def read(i: int):   # a frame whose proposals are stored needs no image
-            return STORED if run.stored is not None and i in run.stored else read_pv(rec, i)
+            return STORED if run.stored is not None and i in run.stored and run.verifier is None else read_pv(rec, i)
 
-        ahead = pool.submit(read, 0)
-        for i in tqdm(range(len(rec)), desc=f"detect ({enroll})", unit="frame", disable=not progress, mininterval=1.0):
+        todo = list(range(len(rec))) if frames is None else sorted(int(i) for i in frames)
+        if not todo:
+            raise EgographError(f"{rec.seq_dir}: no PV frame to detect in")
+        ahead = pool.submit(read, todo[0])
+        for n, i in enumerate(tqdm(todo, desc=f"detect ({enroll})", unit="frame", disable=not progress, mininterval=1.0)):
             ts = int(rec.timestamps[i])
             t0 = time.perf_counter()
             rgb = ahead.result()
-            if i + 1 < len(rec):
-                ahead = pool.submit(read, i + 1)
+            if n + 1 < len(todo):
+                ahead = pool.submit(read, todo[n + 1])
             report.seconds["read"] += time.perf_counter() - t0
             detect_frame(rec, i, ts, rgb, run, guide_world, report, files)
     if report.frames == 0:

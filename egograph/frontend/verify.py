@@ -1,0 +1,178 @@
+"""Verification of shortlisted proposals by local features with geometric verification, and the
+calibrated probability that a box is the instance.
+
+The global embedding of a crop tells categories apart, not instances: a look-alike or a piece of
+clutter scores as high as the instance. Local features with geometric verification tell two
+objects of one category apart by their print, and say "not verified" rather than "similar" for
+clutter. Per enrolled instance the embedding shortlists its ``verify_top_k`` most similar
+proposals; each is verified against every enrollment view (the MVPE photos; the SVOE crop and its
+augmentations): RootSIFT keypoints (OpenCV SIFT, descriptors L1-normalised and square-rooted), the
+ratio test, and a RANSAC homography; the evidence is the most inliers over the views and how far
+they spread over the crop.
+
+The score written is a calibrated probability (logistic regression, coefficients in the
+configuration, fitted on tuning recordings by ``tools/fit_verify.py``) from: the embedding cosine,
+its margin over the best other instance, (under whitening) the whitened cosine, the verified
+inliers, their spread, the inlier margin over the best other instance verified on the same crop,
+and the colour histogram's agreement. A crop with too few keypoints (small or textureless: below
+``verify_min_keypoints`` or a short side under ``verify_min_side_px``) has nothing to verify: a
+second model without the local-feature terms scores it, and the detection says so (``det_conf``
+0 instead of 1).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from egograph.frontend.config import FrontendConfig
+from egograph.frontend.encoder import as_rgb
+
+# the features of one (proposal, instance) pair, in the order of the stored coefficients
+FEATURES = ("cosine", "cosine_margin", "whitened", "log_inliers", "spread", "inlier_margin", "colour")
+FALLBACK_FEATURES = ("cosine", "cosine_margin", "whitened", "colour")
+
+
+@dataclass
+class LocalFeatures:
+    """RootSIFT keypoints of one image: positions (N, 2) in its pixels (after ``scale``),
+    descriptors (N, 128) float32, the image's side lengths and its colour histogram."""
+
+    xy: np.ndarray
+    desc: np.ndarray
+    size: tuple[int, int]          # (rows, cols) of the image the keypoints are in
+    hist: np.ndarray               # hue-saturation histogram, sums to 1
+
+    @property
+    def n(self) -> int:
+        return len(self.xy)
+
+
+def colour_histogram(rgb: np.ndarray, bins: tuple[int, int] = (12, 4)) -> np.ndarray:
+    """Hue x saturation histogram (sums to 1) of the pixels with some saturation and brightness
+    (grey pixels carry no hue), plus one bin for the grey ones."""
+    import cv2
+
+    hsv = cv2.cvtColor(rgb, cv2.COLOR_RGB2HSV).reshape(-1, 3).astype(np.int32)
+    grey = (hsv[:, 1] < 40) | (hsv[:, 2] < 40)
+    h = np.minimum(hsv[~grey, 0] * bins[0] // 180, bins[0] - 1)
+    s = np.minimum((hsv[~grey, 1] - 40) * bins[1] // 216, bins[1] - 1)
+    out = np.bincount(h * bins[1] + s, minlength=bins[0] * bins[1]).astype(np.float64)
+    out = np.append(out, grey.sum())
+    return out / max(out.sum(), 1.0)
+
+
+class Verifier:
+    """Local features and geometric verification (see module doc). ``features`` of every
+    enrollment view once, of each shortlisted crop once per frame; :meth:`verify` compares them."""
+
+    def __init__(self, cfg: FrontendConfig):
+        import cv2
+
+        self.cfg = cfg
+        self.sift = cv2.SIFT_create(nfeatures=cfg.verify_max_keypoints)
+        self.matcher = cv2.BFMatcher(cv2.NORM_L2)
+
+    def features(self, rgb: np.ndarray) -> LocalFeatures:
+        """RootSIFT of ``rgb`` (uint8 RGB) resampled so that its longer side is ``verify_side_px``
+        (small crops are enlarged: SIFT's finest octave needs a few pixels per feature)."""
+        import cv2
+
+        rgb = as_rgb(rgb)
+        rows, cols = rgb.shape[:2]
+        f = self.cfg.verify_side_px / max(rows, cols)
+        img = cv2.resize(rgb, (max(1, round(cols * f)), max(1, round(rows * f))),
+                         interpolation=cv2.INTER_AREA if f < 1 else cv2.INTER_LINEAR)
+        grey = cv2.cvtColor(img, cv2.COLOR_RGB2GRAY)
+        kps, desc = self.sift.detectAndCompute(grey, None)
+        if desc is None or not kps:
+            xy, desc = np.zeros((0, 2), np.float32), np.zeros((0, 128), np.float32)
+        else:
+            xy = np.array([k.pt for k in kps], np.float32)
+            desc = desc / np.maximum(desc.sum(axis=1, keepdims=True), 1e-7)   # RootSIFT: L1, then sqrt
+            desc = np.sqrt(desc).astype(np.float32)
+        return LocalFeatures(xy, desc, img.shape[:2], colour_histogram(img))
+
+    def verify(self, crop: LocalFeatures, view: LocalFeatures) -> tuple[int, float]:
+        """(inliers of a RANSAC homography from ``view`` to ``crop`` after the ratio test, their
+        spread: the square root of their bounding box's share of the crop, 0-1). A homography
+        that folds the view or changes its scale by more than ``verify_max_scale`` counts 0."""
+        import cv2
+
+        if crop.n < 2 or view.n < 2:
+            return 0, 0.0
+        pairs = self.matcher.knnMatch(view.desc, crop.desc, k=2)
+        good = [p[0] for p in pairs if len(p) == 2 and p[0].distance < self.cfg.verify_ratio * p[1].distance]
+        if len(good) < 4:
+            return 0, 0.0
+        src = view.xy[[m.queryIdx for m in good]]
+        dst = crop.xy[[m.trainIdx for m in good]]
+        if len(np.unique(dst.round(0), axis=0)) < 4:
+            return 0, 0.0
+        h, mask = cv2.findHomography(src, dst, cv2.RANSAC, self.cfg.verify_reproj_px, maxIters=500, confidence=0.99)
+        if h is None or mask is None:
+            return 0, 0.0
+        det = float(np.linalg.det(h[:2, :2]))
+        scale = np.sqrt(abs(det)) if det > 0 else 0.0
+        ms = self.cfg.verify_max_scale
+        if not (1.0 / ms <= scale * max(view.size) / max(crop.size) <= ms):
+            return 0, 0.0
+        ok = mask.ravel().astype(bool)
+        n = int(ok.sum())
+        if n < 4:
+            return 0, 0.0
+        pts = dst[ok]
+        span = np.ptp(pts, axis=0) / np.maximum(np.array(crop.size[::-1], np.float32), 1.0)
+        return n, float(np.sqrt(np.clip(span[0] * span[1], 0.0, 1.0)))
+
+    def best(self, crop: LocalFeatures, views: list[LocalFeatures]) -> tuple[int, float, float]:
+        """(most inliers over ``views``, their spread, best histogram intersection over the views);
+        views after one with ``verify_enough`` inliers are not verified (speed)."""
+        best_n, best_s, col = 0, 0.0, 0.0
+        for v in views:
+            col = max(col, float(np.minimum(crop.hist, v.hist).sum()))
+            if best_n >= self.cfg.verify_enough:
+                continue
+            n, s = self.verify(crop, v)
+            if n > best_n or (n == best_n and s > best_s):
+                best_n, best_s = n, s
+        return best_n, best_s, col
+
+
+def textured(f: LocalFeatures, crop_shape: tuple[int, int], cfg: FrontendConfig) -> bool:
+    """Whether a crop has something to verify: enough keypoints and a short side (original pixels)
+    of at least ``verify_min_side_px``."""
+    return f.n >= cfg.verify_min_keypoints and min(crop_shape[:2]) >= cfg.verify_min_side_px
+
+
+def probability(x: np.ndarray, coef) -> np.ndarray:
+    """Logistic model ``1 / (1 + exp(-(b + w . x)))``: ``coef`` = [b, w1, ..., wn], ``x`` (N, n)."""
+    c = np.asarray(coef, np.float64)
+    z = c[0] + np.asarray(x, np.float64) @ c[1:]
+    return 1.0 / (1.0 + np.exp(-np.clip(z, -40, 40)))
+
+
+def feature_rows(cos, cos_margin, white, inliers, spread, inlier_margin, colour) -> np.ndarray:
+    """The model's inputs (N, len(FEATURES)) in :data:`FEATURES` order (inliers as log1p)."""
+    return np.column_stack([cos, cos_margin, white, np.log1p(inliers), spread,
+                            np.sign(inlier_margin) * np.log1p(np.abs(inlier_margin)), colour]).astype(np.float64)
+
+
+def fallback_rows(full: np.ndarray) -> np.ndarray:
+    """The fallback model's inputs: the :data:`FALLBACK_FEATURES` columns of ``full``."""
+    return full[:, [FEATURES.index(k) for k in FALLBACK_FEATURES]]
+
+
+def expected_calibration_error(p: np.ndarray, y: np.ndarray, bins: int = 10) -> float:
+    """ECE: over ``bins`` equal-width probability bins, the share-weighted |mean p - share true|."""
+    p, y = np.asarray(p, float), np.asarray(y, float)
+    if not len(p):
+        return float("nan")
+    k = np.minimum((p * bins).astype(int), bins - 1)
+    err = 0.0
+    for b in range(bins):
+        m = k == b
+        if m.any():
+            err += m.mean() * abs(p[m].mean() - y[m].mean())
+    return float(err)
