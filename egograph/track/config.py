@@ -7,6 +7,8 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
+import numpy as np
+
 from egograph.core.config import Checked, knob, rule_error, section
 from egograph.geometry.config import SUPPORT_GAP_M
 
@@ -167,6 +169,44 @@ class PlacesConfig(Checked):
 
 
 @dataclass
+class AnswersConfig(Checked):
+    every_frame: bool = knob(True, "every frame from an instance's enrollment on is answered (a stand at a place, "
+                                   "the hand while carried, the most probable place while unseen) with a calibrated "
+                                   "confidence; false: the old policy (answers only where a place has enough "
+                                   "support, nothing while carried)")
+    min_confidence: float = knob(0.3, "the operating point: the per-frame files hold the answers of at least this "
+                                      "confidence (answers.tsv holds every answer, for the precision-recall curves). "
+                                      "0.3 was chosen on tuning recordings (seeds 4-8, 900 frames, SVOE and MVPE) as "
+                                      "the highest value keeping P and R >= every baseline's at every threshold "
+                                      "there; egograph track/smooth --min-confidence", min=0.0, max=1.0)
+    distance_m: float = knob(0.25, "the confidence is the probability that the answer lies within this distance "
+                                   "of the truth (what the calibration below was fitted for), metres", gt=0.0)
+    offline_calibration: list = knob([[0.0, 0.0], [1.0, 1.0]],
+                                     "offline graph: raw confidence -> calibrated, as [raw, calibrated] "
+                                     "knots joined linearly (an isotonic fit on tuning recordings: "
+                                     "tools/bench_confidence.py --fit)")
+    causal_calibration: list = knob([[0.0, 0.0], [1.0, 1.0]],
+                                    "graph-causal (every lag): raw confidence -> calibrated knots, as "
+                                    "offline_calibration")
+    smooth_calibration: list = knob([[0.0, 0.0], [1.0, 1.0]],
+                                    "egograph smooth (the graph on another tracker's answers, whose scores it does "
+                                    "not read): raw confidence -> calibrated knots, as offline_calibration")
+
+    def cross_check(self) -> None:
+        for name in ("offline_calibration", "causal_calibration", "smooth_calibration"):
+            knots = getattr(self, name)
+            try:
+                arr = np.asarray(knots, dtype=float)
+                ok = arr.ndim == 2 and arr.shape[1] == 2 and len(arr) >= 2 and bool(np.all(np.diff(arr[:, 0]) > 0)) \
+                    and bool(np.all(np.diff(arr[:, 1]) >= 0))
+            except (TypeError, ValueError):
+                ok = False
+            if not ok:
+                raise rule_error(self, "{} must be [raw, calibrated] pairs, raw increasing, calibrated "
+                                       "non-decreasing", name)
+
+
+@dataclass
 class GraphConfig(Checked):
     score_threshold: float = _score_threshold("minimum matcher score of a detection the graph uses (the paper's 0.6; "
                                               "the same rule as track.score_threshold, set apart)")
@@ -239,6 +279,8 @@ class GraphConfig(Checked):
     places: PlacesConfig = section(PlacesConfig, "offline: places pooled across motion breaks and the place chain "
                                                  "that says which one holds the instance at every frame "
                                                  "(egograph.track.places)")
+    answers: AnswersConfig = section(AnswersConfig, "what the graph trackers answer per frame, their confidence "
+                                                    "and the operating point (egograph.track.answers)")
 
 
 @dataclass
