@@ -2,8 +2,8 @@
 """Answers with a confidence: precision-recall curves over confidence, average precision, the
 operating point and calibration, every egograph tracker against the baselines' points.
 
-    .venv/bin/python tools/bench_confidence.py --seeds 301 302 303 --frames 900 [--json OUT]
-    .venv/bin/python tools/bench_confidence.py --seeds 4 5 6 7 8 --frames 900 --fit   # tuning seeds only
+    .venv/bin/python tools/bench_confidence.py --seeds 301 302 303 --frames 900 [--json-tag TAG]
+    .venv/bin/python tools/bench_confidence.py --seeds 4 5 6 7 8 --frames 900 --fit --json -   # tuning seeds only
 
 Runs on the cached benchmark set (egograph.synth.benchset), SVOE and MVPE: `memory` and `kf` on
 reference and robust lifting (the baselines: their operating points), and on robust lifting
@@ -26,6 +26,7 @@ import json
 import time
 from pathlib import Path
 
+import benchdoc
 import numpy as np
 
 from egograph.core.config import load_config
@@ -54,8 +55,11 @@ def run_recording(root: Path, overrides: list[str], lags: list[float], identity:
         cfg.graph.answers.offline_calibration = IDENTITY
         cfg.graph.answers.causal_calibration = IDENTITY
         cfg.graph.answers.smooth_calibration = IDENTITY
+        for fam in ("offline", "causal", "smooth"):
+            setattr(cfg.graph.answers, f"noisy_{fam}_calibration", IDENTITY)
     rec = open_recording(root, cfg)
-    out: dict[str, dict[str, ScoredAnswers]] = {}
+    out: dict = {}
+    scales: dict = {}
     timing = {}
     for det_set in ("svoe", "mvpe"):
         rows = out.setdefault(det_set, {})
@@ -70,17 +74,22 @@ def run_recording(root: Path, overrides: list[str], lags: list[float], identity:
                     sm = smooth_predictions(rec, res.per_frame, cfg.graph)
                     timing["smooth"] = timing.get("smooth", 0) + time.perf_counter() - t
                     rows["memory+graph"] = evaluate(rec, sm).sequences[rec.name].answers
+                    scales[(det_set, "memory+graph")] = sm.metadata["noise_scale"]
         t = time.perf_counter()
         g = graph_with_scene(rec, obs, cfg, causal=False)
         timing["graph"] = timing.get("graph", 0) + time.perf_counter() - t
         rows["graph"] = evaluate(rec, g).sequences[rec.name].answers
+        scales[(det_set, "graph")] = g.metadata["noise_scale"]
         for lag in lags:
             t = time.perf_counter()
             cfg.graph.lag_s = lag
             c = graph_with_scene(rec, obs, cfg, causal=True)
             timing[f"causal {lag:g}"] = timing.get(f"causal {lag:g}", 0) + time.perf_counter() - t
             rows[f"graph-causal lag {lag:g}"] = evaluate(rec, c).sequences[rec.name].answers
-    print(f"{root.name}: " + ", ".join(f"{k} {v:.0f} s" for k, v in timing.items()), flush=True)
+            scales[(det_set, f"graph-causal lag {lag:g}")] = c.metadata["noise_scale"]
+    print(f"{root.name}: " + ", ".join(f"{k} {v:.0f} s" for k, v in timing.items()) + "; noise scales: "
+          + ", ".join(f"{k[0]} {k[1]} {v:.2f}" for k, v in scales.items()), flush=True)
+    out["scales"] = scales
     return out
 
 
@@ -149,15 +158,13 @@ def point(a: ScoredAnswers, k: int, min_conf: float = -np.inf) -> tuple[float, f
     return (tp / n if n else 0.0), (tp / a.n_gt if a.n_gt else 0.0)
 
 
-def report(parts: list[dict], seeds: list[int], min_conf: float, tau_cal: float) -> dict:
+def report(parts: list[dict], seeds: list[int], min_conf: dict, tau_cal: float) -> dict:
     """Print and return the curves' figures per set (pooled and per recording)."""
     out = {}
     for det_set in ("svoe", "mvpe"):
         names = list(parts[0][det_set])
         ours = [n for n in names if family(n)]
         bases = [n for n in names if not family(n)]
-        print(f"\n## {det_set.upper()}  (AP %, all-point interpolated; 'passes': curve at or above every baseline's "
-              f"point, pooled / recordings)")
         res = out.setdefault(det_set, {})
         for scope in ["pooled", *seeds]:
             sel = parts if scope == "pooled" else [parts[seeds.index(scope)]]
@@ -169,7 +176,7 @@ def report(parts: list[dict], seeds: list[int], min_conf: float, tau_cal: float)
                 row["passes"] = [all(pr_curve(a, t).passes(*base_pts[b][k]) for b in bases)
                                  for k, t in enumerate(THRESHOLDS)]
                 if scope == "pooled":
-                    op = [point(a, k, min_conf) for k in range(len(THRESHOLDS))]
+                    op = [point(a, k, min_conf[family(n)]) for k in range(len(THRESHOLDS))]
                     row["op_p"] = [round(100 * p, 2) for p, _ in op]
                     row["op_r"] = [round(100 * r, 2) for _, r in op]
                     row["op_dominates"] = [all(op[k][0] >= base_pts[b][k][0] - 1e-12 and op[k][1] >= base_pts[b][k][1]
@@ -181,23 +188,40 @@ def report(parts: list[dict], seeds: list[int], min_conf: float, tau_cal: float)
                 for b in bases:
                     res.setdefault(b, {})["pooled"] = {"p": [round(100 * p, 2) for p, _ in base_pts[b]],
                                                        "r": [round(100 * r, 2) for _, r in base_pts[b]]}
-        taus = " ".join(f"{t:>5g}" for t in THRESHOLDS)
-        print(f"{'tracker':28s} AP@ {taus}   ECE   passes pooled | every recording")
+        labels = [f"{t:g}" for t in THRESHOLDS]
+        rows = []
         for n in ours:
             r = res[n]["pooled"]
             per = [all(res[n][str(s)]["passes"]) for s in seeds]
-            print(f"{n:28s}     " + " ".join(f"{v:5.1f}" for v in r["ap"])
-                  + f"  {r['ece']:.3f}  {'yes' if all(r['passes']) else 'NO ' + str(r['passes'])} | "
-                  + ("yes" if all(per) else "NO on " + ", ".join(str(s) for s, ok in zip(seeds, per) if not ok)))
-        print(f"{'baseline points (P/R %)':28s} " + "  ".join(f"@{t:g}" for t in THRESHOLDS))
-        for b in bases:
-            r = res[b]["pooled"]
-            print(f"  {b:26s} " + "  ".join(f"{p:.1f}/{q:.1f}" for p, q in zip(r["p"], r["r"])))
-        print(f"at the operating point (min_confidence {min_conf:g}), P/R %:")
+            rows.append([n, *r["ap"], r["ece"], "yes" if all(r["passes"]) else
+                         "NO at " + ", ".join(l for l, ok in zip(labels, r["passes"]) if not ok),
+                         "yes" if all(per) else "NO on " + "; ".join(
+                             f"{s} at " + ",".join(l for l, ok in zip(labels, res[n][str(s)]["passes"]) if not ok)
+                             for s, ok in zip(seeds, per) if not ok)])
+        benchdoc.table(f"{det_set.upper()}: average precision over confidence (%, all-point interpolated), ECE at "
+                       f"{tau_cal:g} m, and whether each curve passes at or above every baseline's point (memory, kf; "
+                       "both liftings) at every threshold",
+                       ["tracker", *[f"AP@{l}" for l in labels], "ECE", "passes (pooled)", "passes (every recording)"],
+                       rows, ["", *[".1f"] * len(labels), ".3f", "", ""])
+        benchdoc.table(f"{det_set.upper()}: the baselines' points and the egograph trackers at the default operating "
+                       f"point (graph.answers.min_confidence {min_conf['offline']:g}, causal_min_confidence "
+                       f"{min_conf['causal']:g}), P / R % (pooled)",
+                       ["tracker", *[f"P/R@{l}" for l in labels], ">= every baseline"],
+                       [[b, *[f"{p:.1f} / {q:.1f}" for p, q in zip(res[b]["pooled"]["p"], res[b]["pooled"]["r"])], "-"]
+                        for b in bases]
+                       + [[n, *[f"{p:.1f} / {q:.1f}" for p, q in zip(res[n]["pooled"]["op_p"], res[n]["pooled"]["op_r"])],
+                           "yes" if all(res[n]["pooled"]["op_dominates"]) else
+                           "NO at " + ", ".join(l for l, ok in zip(labels, res[n]["pooled"]["op_dominates"]) if not ok)]
+                          for n in ours])
         for n in ours:
-            r = res[n]["pooled"]
-            print(f"  {n:26s} " + "  ".join(f"{p:.1f}/{q:.1f}" for p, q in zip(r["op_p"], r["op_r"]))
-                  + f"  >= every baseline: {'yes' if all(r['op_dominates']) else 'NO ' + str(r['op_dominates'])}")
+            rel = res[n]["pooled"]["reliability"]
+            edges = rel["edges"]
+            benchdoc.table(f"{det_set.upper()} {n}: reliability at {tau_cal:g} m (answers binned by confidence)",
+                           ["confidence", "answers", "mean confidence", "share within"],
+                           [[f"{edges[i]:.1f}-{edges[i + 1]:.1f}", rel["count"][i],
+                             "-" if rel["confidence"][i] is None else f"{rel['confidence'][i]:.3f}",
+                             "-" if rel["share"][i] is None else f"{rel['share'][i]:.3f}"]
+                            for i in range(len(rel["count"])) if rel["count"][i]])
     return out
 
 
@@ -210,8 +234,10 @@ def main() -> None:
     ap.add_argument("--cache", type=Path, default=REPO / ".cache" / "bench")
     ap.add_argument("--fit", action="store_true", help="fit the calibration and choose the operating point "
                                                        "(tuning seeds only)")
-    ap.add_argument("--json", type=Path, help="write the figures here")
+    ap.add_argument("--out", type=Path, help="also write every figure (curves' APs, reliability, knots) here as JSON")
+    benchdoc.add_arguments(ap, __file__)
     args = ap.parse_args()
+    benchdoc.start(__file__, args)
     if args.fit and any(s > 300 for s in args.seeds):
         ap.error("--fit on held-out seeds (301+): fit on tuning seeds only")
     roots = benchmark_set(args.seeds, args.frames, config=synth_config("svoe"), cache=args.cache, progress=False)
@@ -220,43 +246,58 @@ def main() -> None:
     doc = {"seeds": args.seeds, "frames": args.frames, "lags": args.lags, "overrides": args.overrides}
     if args.fit:
         knots = {}
+        split = cfg.graph.answers.noisy_scale
         for fam in ("offline", "causal", "smooth"):
-            raw, ok = [], []
-            for p in parts:
-                for det_set in ("svoe", "mvpe"):
-                    for n, a in p[det_set].items():
-                        if family(n) == fam:
-                            raw.append(a.score)
-                            ok.append(a.tp[:, THRESHOLDS.index(cfg.graph.answers.distance_m)] > 0)
-            knots[fam] = fit_isotonic(np.concatenate(raw), np.concatenate(ok).astype(float))
-            print(f"graph.answers.{fam}_calibration: {json.dumps(knots[fam])}")
+            for noisy in (False, True):
+                raw, ok = [], []
+                for p in parts:
+                    for det_set in ("svoe", "mvpe"):
+                        for n, a in p[det_set].items():
+                            if family(n) == fam and (p["scales"][(det_set, n)] >= split) == noisy:
+                                raw.append(a.score)
+                                ok.append(a.tp[:, THRESHOLDS.index(cfg.graph.answers.distance_m)] > 0)
+                key = f"{'noisy_' if noisy else ''}{fam}_calibration"
+                if not raw:
+                    benchdoc.text(f"graph.answers.{key}: no tuning answers (kept)")
+                    continue
+                knots[key] = fit_isotonic(np.concatenate(raw), np.concatenate(ok).astype(float))
+                benchdoc.text(f"graph.answers.{key}: {json.dumps(knots[key])}")
         for p in parts:
             for det_set in ("svoe", "mvpe"):
                 for n in list(p[det_set]):
                     if family(n):
-                        p[det_set][n] = recalibrated(p[det_set][n], knots[family(n)])
+                        key = f"{'noisy_' if p['scales'][(det_set, n)] >= split else ''}{family(n)}_calibration"
+                        if key in knots:
+                            p[det_set][n] = recalibrated(p[det_set][n], knots[key])
         doc["knots"] = knots
         grid = np.round(np.arange(0.05, 0.96, 0.05), 2)
-        feasible = []
-        for c in grid:
-            ok = True
-            for det_set in ("svoe", "mvpe"):
-                names = list(parts[0][det_set])
-                bases = [n for n in names if not family(n)]
-                for n in (n for n in names if family(n)):
+        feasible: dict[str, list[float]] = {}
+        for n in (n for n in parts[0]["svoe"] if family(n)):
+            ok_at = []
+            for c in grid:
+                ok = True
+                for det_set in ("svoe", "mvpe"):
                     a = pooled(parts, det_set, n)
+                    bases = [b for b in parts[0][det_set] if not family(b)]
                     for k in range(len(THRESHOLDS)):
                         p, r = point(a, k, c)
-                        ok &= all(p >= point(pooled(parts, det_set, b), k)[0] and r >= point(pooled(parts, det_set, b), k)[1]
-                                  for b in bases)
-            feasible.append(bool(ok))
-        print("operating points where every egograph tracker's P and R >= every baseline's (pooled, both sets): "
-              + (", ".join(f"{c:g}" for c, ok in zip(grid, feasible) if ok) or "none"))
-        doc["feasible_min_confidence"] = [float(c) for c, ok in zip(grid, feasible) if ok]
-    doc["sets"] = report(parts, args.seeds, cfg.graph.answers.min_confidence, cfg.graph.answers.distance_m)
-    if args.json:
-        args.json.parent.mkdir(parents=True, exist_ok=True)
-        args.json.write_text(json.dumps(doc, indent=1) + "\n")
+                        ok &= all(p >= point(pooled(parts, det_set, b), k)[0] - 1e-12
+                                  and r >= point(pooled(parts, det_set, b), k)[1] - 1e-12 for b in bases)
+                if ok:
+                    ok_at.append(float(c))
+            feasible[n] = ok_at
+            benchdoc.text(f"{n}: operating points (min_confidence) where its P and R >= every baseline's at every "
+                          f"threshold, pooled, both sets: {', '.join(f'{c:g}' for c in ok_at) or 'none'}")
+        doc["feasible_min_confidence"] = feasible
+    a = cfg.graph.answers
+    doc["sets"] = report(parts, args.seeds, {"offline": a.min_confidence, "smooth": a.min_confidence,
+                                             "causal": a.causal_min_confidence}, a.distance_m)
+    if args.out:
+        args.out.parent.mkdir(parents=True, exist_ok=True)
+        args.out.write_text(json.dumps(doc, indent=1) + "\n")
+    benchdoc.text(f"recordings: seeds {', '.join(map(str, args.seeds))} at {args.frames} frames; graph-causal lags "
+                  f"{', '.join(f'{x:g}' for x in args.lags)} s")
+    benchdoc.finish()
 
 
 if __name__ == "__main__":

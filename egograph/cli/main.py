@@ -293,12 +293,14 @@ def cmd_regt(args) -> int:
 
 
 def _min_confidence(args, cfg) -> None:
-    """--min-confidence: the operating point of the graph trackers (graph.answers.min_confidence)."""
+    """--min-confidence: the operating point of the graph trackers (graph.answers.min_confidence and
+    causal_min_confidence)."""
     if getattr(args, "min_confidence", None) is None:
         return
     if not 0.0 <= args.min_confidence <= 1.0:
         raise ConfigError(f"--min-confidence {args.min_confidence}: a probability, 0-1")
     cfg.graph.answers.min_confidence = float(args.min_confidence)
+    cfg.graph.answers.causal_min_confidence = float(args.min_confidence)
 
 
 def cmd_smooth(args) -> int:
@@ -619,7 +621,7 @@ def build_parser() -> argparse.ArgumentParser:
                                                           "S seconds after it (graph.lag_s; default 0, causal)")
     s.add_argument("--min-confidence", type=float, metavar="C",
                    help="graph trackers: the operating point; the per-frame files hold the answers of confidence >= C "
-                        "(answers.tsv every answer; graph.answers.min_confidence)")
+                        "(answers.tsv every answer; graph.answers.min_confidence, causal_min_confidence)")
     s.add_argument("--intervals", type=Path, help="interval trackers: also write the intervals JSON here "
                                                   "(it is always in RESULTS/intervals.json)")
     s.add_argument("--detections", default="svoe", help="folder of per-frame detection files, or a set name "
@@ -655,7 +657,7 @@ def build_parser() -> argparse.ArgumentParser:
     s.add_argument("--causal", action="store_true", help="causal (iSAM2) instead of offline")
     s.add_argument("--min-confidence", type=float, metavar="C",
                    help="graph trackers: the operating point; the per-frame files hold the answers of confidence >= C "
-                        "(answers.tsv every answer; graph.answers.min_confidence)")
+                        "(answers.tsv every answer; graph.answers.min_confidence, causal_min_confidence)")
     s.add_argument("--eval", action="store_true", help="evaluate the smoothed results against the annotations")
     _add_quiet(s)
     _add_overwrite(s)

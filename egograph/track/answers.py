@@ -11,7 +11,7 @@ answered stand times the place's reality, :func:`offline_answers`; online: the l
 max-marginal, :mod:`egograph.track.online`); :func:`calibrated` maps it through monotone knots fitted
 on tuning recordings (isotonic regression, ``tools/bench_confidence.py --fit``) so that a confidence
 matches the frequency of answers within the distance. :func:`operating_point` keeps the answers of at
-least ``min_confidence``: what the per-frame files hold. World frame, metres; PV frame indices.
+least ``min_confidence`` (graph-causal: ``causal_min_confidence``): what the per-frame files hold. World frame, metres; PV frame indices.
 """
 
 from __future__ import annotations
@@ -26,6 +26,10 @@ from egograph.track.places import UNSEEN_STATE, stand_state, state_kind
 
 HAND_RAW = 0.0
 """Raw confidence of an answer at the hand while carried (never inside a true interval)."""
+
+LAST_RAW = 0.001
+"""Raw confidence of an answer at the newest detection of an instance with no place yet (a sliver
+above the hand's, so that calibration tells the two apart: such a detection is often right)."""
 
 EMPTY_FACTOR = 0.1
 """Raw confidence factor of a stand at a place depth has shown empty (offline, after the cut)."""
@@ -53,7 +57,7 @@ def offline_answers(sol, path: np.ndarray | None, post: np.ndarray | None, reali
     place's reality; of UNSEEN, halved, at the hand's last position); a carried frame answers the
     nearest detection in hand (raw ``HAND_RAW``); any other frame the place of largest posterior
     times reality (raw: that product, times ``EMPTY_FACTOR`` at a place depth showed empty). Without
-    places, the nearest detection in time (raw 0). Rows NaN when the instance has no detection."""
+    places, the nearest detection in time (raw ``LAST_RAW``). Rows NaN when the instance has no detection."""
     xyz = np.full((n_frames, 3), np.nan)
     raw = np.zeros(n_frames)
     if sol.world is None or not len(sol.world):
@@ -65,6 +69,7 @@ def offline_answers(sol, path: np.ndarray | None, post: np.ndarray | None, reali
     k = len(places)
     if post is None or k == 0:
         xyz[:] = sol.world[order][_nearest(frames[order], t)]
+        raw[:] = LAST_RAW
         return xyz, raw
     real = np.asarray(reality, float)
     stand = post[:, [stand_state(j) for j in range(k)]] * real[None, :]
@@ -100,6 +105,9 @@ def predictions(instance: int, xyz: np.ndarray, conf: np.ndarray, t_frames: np.n
                                                                 float(conf[f])))
 
 
-def operating_point(answers: dict[int, list[Prediction]], cfg: AnswersConfig) -> dict[int, list[Prediction]]:
-    """The answers of at least ``cfg.min_confidence`` (every key kept, ``[]`` where none)."""
-    return {t: [p for p in preds if p.score >= cfg.min_confidence] for t, preds in answers.items()}
+def operating_point(answers: dict[int, list[Prediction]], cfg: AnswersConfig, causal: bool = False
+                    ) -> dict[int, list[Prediction]]:
+    """The answers of at least ``cfg.min_confidence`` (``causal_min_confidence`` for graph-causal;
+    every key kept, ``[]`` where none)."""
+    floor = cfg.causal_min_confidence if causal else cfg.min_confidence
+    return {t: [p for p in preds if p.score >= floor] for t, preds in answers.items()}

@@ -272,7 +272,8 @@ def graph_tracker(obs: Observations, timestamps: Sequence[int], cfg: GraphConfig
         for s in solutions:
             if s.answers is not None:
                 xyz, raw = s.answers
-                predictions(s.instance, xyz, calibrated(raw, cfg.answers.offline_calibration), t_frames, answers)
+                predictions(s.instance, xyz, calibrated(raw, cfg.answers.knots("offline", scales[-1])), t_frames,
+                            answers)
         answers = {t: sorted(p, key=lambda q: q.instance) for t, p in answers.items()}
         per_frame = operating_point(answers, cfg.answers)
     metadata = {
@@ -320,7 +321,7 @@ def _causal_result(obs: Observations, t_frames: np.ndarray, cfg: GraphConfig, id
     answers = None
     if cfg.answers.every_frame:  # every frame answered, calibrated; the files hold the operating point
         answers = {t: sorted(p, key=lambda q: q.instance) for t, p in per_frame.items()}
-        per_frame = operating_point(answers, cfg.answers)
-        metadata["min_confidence"] = cfg.answers.min_confidence
+        per_frame = operating_point(answers, cfg.answers, causal=True)
+        metadata["min_confidence"] = cfg.answers.causal_min_confidence
     return TrackResult(per_frame=per_frame, intervals=intervals, metadata=metadata, solutions=solutions,
                        answers=answers)

@@ -51,7 +51,7 @@ import numpy as np
 from egograph.core.types import PositionInterval, Prediction
 from egograph.core.units import TICKS_PER_SECOND
 from egograph.geometry.observations import Observations
-from egograph.track.answers import HAND_RAW, calibrated
+from egograph.track.answers import HAND_RAW, LAST_RAW
 from egograph.track.config import GraphConfig
 from egograph.track.detection_factor import lengths
 from egograph.track.noise_scale import refit
@@ -244,6 +244,7 @@ class OnlineTracker:
         self._claim_xyz, self._claim_n, self._claim_on = np.zeros((0, 3)), np.zeros(0), np.zeros(0, bool)
         self._claim_row: dict[int, int] = {}
         self._claims_version = 0
+        self._calibration: tuple | None = None  # graph.answers.causal_calibration as arrays (_answer)
 
     # ------------------------------------------------------------------ the loop
 
@@ -666,8 +667,12 @@ class OnlineTracker:
             pred = self._fallback_answer(inst, st, state, ts)
         if pred is None:
             return None
-        if every:
-            pred = Prediction(pred.instance, pred.xyz, float(calibrated(pred.score, self.cfg.answers.causal_calibration)))
+        if every:  # the calibration knots as arrays once (this runs per instance and frame)
+            if self._calibration is None or self._calibration[0] != self.scale:  # the scale fitted so far
+                knots = np.asarray(self.cfg.answers.knots("causal", self.scale), float)
+                self._calibration = (self.scale, np.ascontiguousarray(knots[:, 0]), np.ascontiguousarray(knots[:, 1]))
+            _, x, y = self._calibration
+            pred = Prediction(pred.instance, pred.xyz, min(max(float(np.interp(pred.score, x, y)), 0.0), 1.0))
         return pred
 
     def _fallback_answer(self, inst: int, st: _Instance, state: int, ts: int) -> Prediction | None:
@@ -675,7 +680,7 @@ class OnlineTracker:
         unseen (standing at a place not among its places), the newest detection when it is newer
         than every inlier of the place of the best stand score (that place is then left behind), else
         that place (raw, both: that place's share of the frame's scores, halved), else the hand's
-        last position; with no place and no hand, the newest detection (raw 0)."""
+        last position; with no place and no hand, the newest detection (raw ``LAST_RAW``)."""
         kind = state_kind(state)
         held = [xyz for t, xyz in st.hands if t <= ts]
         if kind == -1 and held:
@@ -690,7 +695,7 @@ class OnlineTracker:
         if held:
             return Prediction(inst, tuple(float(v) for v in held[-1]), HAND_RAW)
         if st.last_xyz is not None:
-            return Prediction(inst, tuple(float(v) for v in st.last_xyz), HAND_RAW)
+            return Prediction(inst, tuple(float(v) for v in st.last_xyz), LAST_RAW)
         return None
 
     def _raw_answer(self, inst: int, st: _Instance, state: int, next_kind: int | None, ts: int,
