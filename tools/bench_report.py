@@ -93,8 +93,9 @@ SECTIONS: tuple[Section, ...] = (
             "the baseline's), pooled and on every recording; P and R at the default operating point "
             "(`graph.answers.min_confidence`) against the baselines'; the reliability table and expected "
             "calibration error at 0.25 m. Held out: the calibration and the operating point were fitted on tuning "
-            "seeds (`--fit`).",
-            f"{PY} tools/bench_confidence.py --seeds 1 2 3 {HELD_OUT_12} --frames 900 --json-tag heldout"),
+            "seeds (`--fit`). A subset of the issue's held-out set (the demo's seeds 1-3 and 301-303, all at 900 "
+            "frames; the issue asks 301-312 at 3000 frames besides the demo's): the machine's load allowed no more.",
+            f"{PY} tools/bench_confidence.py --seeds 1 2 3 301 302 303 --frames 900 --json-tag heldout"),
     Section("bench_confidence-fit", "Answers with a confidence: the calibration fit (tuning seeds)",
             "The isotonic fit of calibrated against raw confidence per tracker family and the operating points "
             "at which each egograph tracker's P and R reach every baseline's, on tuning seeds only.",

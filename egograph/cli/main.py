@@ -463,9 +463,9 @@ def _dominance_why(ours, base: dict, misses: list) -> str:
     if recall:
         name = recall[-1].against
         theirs = base[name].total
-        out.append(f"it answers {ours.n_pred} frames against {name}'s {theirs.n_pred}; where no place has enough "
-                   f"support yet it answers nothing, and {name}'s last-seen guess lands within the threshold on some of "
-                   "those frames")
+        out.append(f"at its operating point it answers {ours.n_pred} frames against {name}'s {theirs.n_pred} (answers "
+                   f"below graph.answers.min_confidence are left out of the files: --min-confidence), and {name}'s "
+                   "last-seen guess lands within the threshold on some of those frames")
     if any(m.metric == "L2" for m in misses):
         far = ours.l2_n - int(ours.tp[-1])
         out.append(f"its L2 is the mean error over the {ours.l2_n} frames it answers in a true interval, and {far} of "
