@@ -96,6 +96,11 @@ SECTIONS: tuple[Section, ...] = (
             "seeds (`--fit`). A subset of the issue's held-out set (the demo's seeds 1-3 and 301-303, all at 900 "
             "frames; the issue asks 301-312 at 3000 frames besides the demo's): the machine's load allowed no more.",
             f"{PY} tools/bench_confidence.py --seeds 1 2 3 301 302 303 --frames 900 --json-tag heldout"),
+    Section("bench_confidence-heldout-lags", "Answers with a confidence: graph-causal with a lag",
+            "The same held-out recordings with graph-causal at lags of 2 s and 30 s (its calibration was fitted "
+            "at lag 0: a lagged answer's raw confidence is the place's support, so its ECE is not meant to hold).",
+            f"{PY} tools/bench_confidence.py --seeds 1 2 3 301 302 303 --frames 900 --lags 2 30 "
+            "--json-tag heldout-lags"),
     Section("bench_confidence-fit", "Answers with a confidence: the calibration fit (tuning seeds)",
             "The isotonic fit of calibrated against raw confidence per tracker family and the operating points "
             "at which each egograph tracker's P and R reach every baseline's, on tuning seeds only.",
