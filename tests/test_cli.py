@@ -148,3 +148,19 @@ def test_an_unexpected_error_is_one_line_and_a_log_file(tiny_rec, tmp_path, caps
     assert err.count("\n") == 1 and "internal error: ValueError: operands could not be broadcast" in err
     log = tmp_path / "egograph-error-info.log"
     assert str(log) in err and "Traceback" in log.read_text() and "broken" in log.read_text()
+
+
+def test_min_confidence_is_a_probability_and_sets_both_operating_points(tmp_path, capsys):
+    """--min-confidence is checked before anything is read, and --show-config shows it set for the
+    offline and the causal graph (graph.answers.min_confidence, causal_min_confidence)."""
+    assert main(["track", str(tmp_path / "none"), "--tracker", "graph", "--out", str(tmp_path / "o"),
+                      "--min-confidence", "1.5"]) == 2
+    assert "--min-confidence 1.5" in capsys.readouterr().err
+    from egograph.cli.main import _min_confidence
+    from egograph.core.config import load_config
+    from egograph.core.resources import default_config
+    from egograph.steps.settings import EgographConfig
+
+    cfg = load_config(EgographConfig, default_config())
+    _min_confidence(type("A", (), {"min_confidence": 0.6})(), cfg)
+    assert cfg.graph.answers.min_confidence == cfg.graph.answers.causal_min_confidence == 0.6

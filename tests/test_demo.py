@@ -112,8 +112,12 @@ def test_the_demo_ends_with_the_path_of_its_pictures(tmp_path):
     for i, line in enumerate(lines):
         if line.startswith(("graph: below", "graph-causal: below")):
             assert lines[i + 1].startswith("  why: "), lines[i:i + 2]
+    # per detection set, AP per threshold and whether each egograph tracker's curve passes every baseline's point
+    curves = [line for line in lines if line.startswith(("graph (robust lift): curve", "graph-causal (robust lift): curve"))]
+    assert len(curves) == 4, curves
+    assert sum(line.startswith("average precision over confidence") for line in lines) == 2
     images = page_images(index)
-    want = {"metrics.png"} | {f"{kind}_{re.sub(r'[^A-Za-z0-9_.-]+', '_', row).strip('._')}.png"
+    want = {"metrics.png", "curves.png"} | {f"{kind}_{re.sub(r'[^A-Za-z0-9_.-]+', '_', row).strip('._')}.png"
                               for row in DEMO_ROWS for kind in ("timeline", "map")}
     assert set(images) == want, set(images) ^ want
     for name in images:

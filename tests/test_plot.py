@@ -134,15 +134,17 @@ def test_plot_tiny_recording(tiny_rec, tmp_path):
     with pytest.warns(UserWarning, match="no PV images"):
         assert main(args) == 0
     pngs = _check_page(out)
-    assert pngs == ["map_mem.png", "metrics.png", "timeline_mem.png"]   # no PV images: no contact sheet
+    # no PV images: no contact sheet; memory's scores (its last detection's) make a curve over confidence
+    assert pngs == ["curves.png", "map_mem.png", "metrics.png", "timeline_mem.png"]
     heights = {n: cv2.imread(str(out / n)).shape[0] for n in pngs}
     assert heights["metrics.png"] == plots.figure_size_px(plots.METRICS_HEIGHT_IN)[1]
+    assert heights["curves.png"] == plots.figure_size_px(plots.CURVES_HEIGHT_IN)[1]
     assert heights["map_mem.png"] == plots.figure_size_px(plots.MAP_HEIGHT_IN)[1]
     assert heights["timeline_mem.png"] == plots.figure_size_px(plots.timeline_height_in(5))[1]  # 5 instances
     timeline = cv2.imread(str(out / "timeline_mem.png"))[..., ::-1]
     assert (timeline == CARRY_RGB).all(axis=2).sum() > 500   # can_1 is carried for 85 of 240 frames
     page = (out / "index.html").read_text()
-    assert "<table>" in page and "P@0.25" in page and "<td>mem</td>" in page
+    assert "<table>" in page and "P@0.25" in page and "<td>mem</td>" in page and "AP@0.25" in page
     first = _files(out)
     with pytest.warns(UserWarning):
         assert main(args) == 0
@@ -157,7 +159,7 @@ def test_plot_rgb_recording_contact_sheet(tiny_rgb_rec, tmp_path):
     out = tmp_path / "plots"
     assert main(["plot", str(tiny_rgb_rec), str(a), str(b), "--names", "memory,kf", "--out", str(out)]) == 0
     pngs = _check_page(out)
-    assert pngs == ["map_kf.png", "map_memory.png", "metrics.png", "pv_sheet.png", "timeline_kf.png",
+    assert pngs == ["curves.png", "map_kf.png", "map_memory.png", "metrics.png", "pv_sheet.png", "timeline_kf.png",
                     "timeline_memory.png"]
     sheet = cv2.imread(str(out / "pv_sheet.png"))
     assert sheet.shape[0] == plots.figure_size_px(plots.sheet_height_in(1))[1]   # 30 frames: no break, one row

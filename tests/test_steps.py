@@ -66,6 +66,12 @@ def test_track_writes_one_self_describing_folder_and_skips_a_repeat(rec, cfg, ob
     names = {p.name for p in out.iterdir()}
     assert {"intervals.json", "config.yaml", "egograph.json"} <= names
     assert len([n for n in names if n.endswith(".txt")]) == len(rec)
+    # every answer with its confidence beside the per-frame files, which hold the operating point's
+    assert "answers.tsv" in names and result.answers is not None
+    back = read_result(out, rec)
+    assert back.answers == result.answers
+    floor = cfg.graph.answers.min_confidence
+    assert back.per_frame == {t: [p for p in v if p.score >= floor] for t, v in result.answers.items()}
     run = json.loads((out / "egograph.json").read_text())
     assert run["step"] == "track" and run["egograph_version"] == __version__ and run["inputs"]["tracker"] == "graph"
     # the saved configuration is a config file the loader reads back to the same values

@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 
 from egograph.geometry.observations import Observations
-from egograph.track.config import GraphConfig
+from egograph.track.config import AnswersConfig, GraphConfig
 from egograph.track.online import OnlineTracker, run_online
 
 T0 = 133_400_000_000_000_000
@@ -19,7 +19,11 @@ A = np.array([1.0, 0.9, 2.0])
 B = np.array([2.5, 0.8, 0.5])
 TWIN = np.array([0.2, 0.9, 3.0])
 CARRY = (200, 260)  # frames [lo, hi) in hand while the wearer walks; at A before, at B after
-CFG = GraphConfig(negative_evidence=False)
+# the place chain's own decisions (what it reports, and nothing while carried): the answering policy
+# of before graph.answers.every_frame; every frame answered is pinned by test_every_frame_answered
+OLD_POLICY = AnswersConfig(every_frame=False)
+CFG = GraphConfig(negative_evidence=False, answers=OLD_POLICY)
+EVERY = GraphConfig(negative_evidence=False)
 
 
 def stamps(n: int = N) -> np.ndarray:
@@ -88,6 +92,31 @@ def hits(final: dict) -> tuple[int, int]:
             t = truth_at(f)
             ok += t is not None and np.linalg.norm(np.subtract(xyz, t)) < 0.25
     return n, ok
+
+
+def test_every_frame_answered_with_its_confidence():
+    """graph.answers.every_frame: from the first detection on every frame is answered; the stands
+    as the chain reports them (the same place), the carry at the hand with the least confidence."""
+    _, old, _ = live(make_obs(scenario()))
+    trk = OnlineTracker(EVERY, T0)
+    answers = {}
+    for f, ts in enumerate(stamps()):
+        trk.step(f, int(ts), make_obs(scenario()).select(make_obs(scenario()).frame == f))
+        answers.update({g: preds for g, _, preds in trk.collect()})
+    answers.update({g: preds for g, _, preds in trk.finish()})
+    first = 30
+    assert all(answers[f] == [] for f in range(first))
+    assert all(len(answers[f]) == 1 for f in range(first, N))       # every frame from the first detection
+    hand = [answers[f][0] for f in range(CARRY[0] + 20, CARRY[1])]  # carried: at the hand, low confidence
+    cam = camera_at(np.arange(CARRY[0] + 20, CARRY[1], dtype=float))
+    assert all(np.linalg.norm(np.subtract(p.xyz, c)) < 1.0 for p, c in zip(hand, cam))
+    for f in range(first, N):  # where the chain reports a stand, the same place
+        if old[f]:
+            assert np.allclose(answers[f][0].xyz, old[f][0][1])
+    # the hand's answers are the least confident (calibrated: never inside a true interval, but an
+    # answer at the hand can be right where the call "in hand" is wrong); the stands' well above
+    stands = [answers[f][0].score for f in range(60, CARRY[0])]
+    assert max(p.score for p in hand) <= min(stands) and np.median(stands) >= 0.5
 
 
 def test_answers_early_precisely_and_nothing_while_carried():
@@ -177,11 +206,18 @@ def test_graph_causal_cli_output_equals_the_online_api(tiny_rec, tmp_path):
     ours = {}
     for f, ts in enumerate(rec.timestamps):
         ours[int(ts)] = trk.step(f, int(ts), obs.select(obs.frame == f))
+    # every answer (answers.tsv) is the API's, score included; the per-frame files its operating point
+    from egograph.io.detections import read_answers_file
+
+    every = read_answers_file(out / "answers.tsv")
     cli = read_results_dir(out, rec.timestamps)
     assert sum(len(v) for v in ours.values()) > 0
+    floor = cfg.graph.answers.causal_min_confidence
     for ts, preds in ours.items():
-        assert [p.instance for p in cli[ts]] == [p.instance for p in preds]
-        assert np.allclose([p.xyz for p in cli[ts]], [p.xyz for p in preds], atol=1e-5) if preds else True
+        assert [p.instance for p in every.get(ts, [])] == [p.instance for p in preds]
+        assert np.allclose([p.xyz for p in every.get(ts, [])], [p.xyz for p in preds], atol=1e-5) if preds else True
+        assert np.allclose([p.score for p in every.get(ts, [])], [p.score for p in preds], atol=1e-9) if preds else True
+        assert [p.instance for p in cli[ts]] == [p.instance for p in preds if p.score >= floor]
 
     assert main(["track", str(tiny_rec), "--tracker", "graph-causal", "--lag", "2", "--detections", "mvpe",
                  "--quiet", "--out", str(tmp_path / "lag2")]) == 0
@@ -270,7 +306,7 @@ def test_a_glimpse_at_another_instances_stand_is_a_confusion(exclusion):
     rows = [(f, 0, A + 0.02 * rng.standard_normal(3), 0.8) for f in range(30, 400, 3)]
     rows += [(300, 1, A + [0.03, 0, 0], 0.9), (303, 1, A - [0.03, 0, 0], 0.9)]
     rows += [(500, 1, B, 0.9), (503, 1, B, 0.9)]
-    cfg = GraphConfig(negative_evidence=False, exclusion_radius_m=0.15 if exclusion else 0.0)
+    cfg = GraphConfig(negative_evidence=False, answers=OLD_POLICY, exclusion_radius_m=0.15 if exclusion else 0.0)
     cfg.places.lookalike_share = cfg.places.lookalike_share if exclusion else 0.0
     now, _, _ = live(make_obs(rows), cfg)
     inst1 = {f: xyz for f in now for i, xyz in now[f] if i == 1}
@@ -292,7 +328,7 @@ def test_an_unseen_carry_is_guessed_put_down_where_last_held(after_s):
              for f in range(CARRY[0], CARRY[1], 3)]
     put = camera_at(np.array([float(CARRY[1] - 3)]))[0] + offset + [0.05, -0.1, 0.0]
     rows += [(f, 0, put + 0.02 * rng.standard_normal(3), 0.7) for f in range(450, N, 3)]
-    cfg = GraphConfig(negative_evidence=False, put_down_after_s=after_s)
+    cfg = GraphConfig(negative_evidence=False, answers=OLD_POLICY, put_down_after_s=after_s)
     now, final, _ = live(make_obs(rows), cfg)
     assert now == final
     assert all(now[f] == [] for f in range(CARRY[1] + 5, CARRY[1] + 20))  # within the second: nothing

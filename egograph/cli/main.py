@@ -229,6 +229,7 @@ def cmd_track(args) -> int:
         if not args.lag >= 0:
             raise ConfigError(f"--lag {args.lag}: seconds, >= 0")
         cfg.graph.lag_s = float(args.lag)
+    _min_confidence(args, cfg)
     rec = _open(args, cfg)
     con = _console()
     t0 = time.perf_counter()
@@ -291,11 +292,23 @@ def cmd_regt(args) -> int:
     return 0
 
 
+def _min_confidence(args, cfg) -> None:
+    """--min-confidence: the operating point of the graph trackers (graph.answers.min_confidence and
+    causal_min_confidence)."""
+    if getattr(args, "min_confidence", None) is None:
+        return
+    if not 0.0 <= args.min_confidence <= 1.0:
+        raise ConfigError(f"--min-confidence {args.min_confidence}: a probability, 0-1")
+    cfg.graph.answers.min_confidence = float(args.min_confidence)
+    cfg.graph.answers.causal_min_confidence = float(args.min_confidence)
+
+
 def cmd_smooth(args) -> int:
     from egograph.steps.recording import labels
     from egograph.steps.smooth import smooth
 
     cfg = pipeline_config(args)
+    _min_confidence(args, cfg)
     rec = _open(args, cfg)
     result = smooth(rec, args.results, cfg, args.out, causal=args.causal, overwrite=args.overwrite,
                     progress=not args.quiet)
@@ -431,6 +444,7 @@ def cmd_demo(args) -> int:
         con.print("intervals recovered: " + ", ".join(
             f"{k.split(' ', 1)[1]} {v.intervals.n_recovered}/{v.intervals.n_true}" for k, v in sub.items()))
         print_dominance(con, det_set, sub)
+        print_curves(con, det_set, sub)
     con.rule("5. pictures (egograph plot)")
     pictures = plot_step(rec, list(results.values()), out / "plots", load_config(EgographConfig, DEFAULT_CONFIG),
                          names=list(results))
@@ -449,9 +463,9 @@ def _dominance_why(ours, base: dict, misses: list) -> str:
     if recall:
         name = recall[-1].against
         theirs = base[name].total
-        out.append(f"it answers {ours.n_pred} frames against {name}'s {theirs.n_pred}; where no place has enough "
-                   f"support yet it answers nothing, and {name}'s last-seen guess lands within the threshold on some of "
-                   "those frames")
+        out.append(f"at its operating point it answers {ours.n_pred} frames against {name}'s {theirs.n_pred} (answers "
+                   f"below graph.answers.min_confidence are left out of the files: --min-confidence), and {name}'s "
+                   "last-seen guess lands within the threshold on some of those frames")
     if any(m.metric == "L2" for m in misses):
         far = ours.l2_n - int(ours.tp[-1])
         out.append(f"its L2 is the mean error over the {ours.l2_n} frames it answers in a true interval, and {far} of "
@@ -476,6 +490,36 @@ def print_dominance(con, det_set: str, reports: dict) -> None:
             text = "; ".join(m.describe() for m in misses)
             con.print(f"{row}: below a baseline on this recording: {text}", soft_wrap=True)
             con.print(f"  why: {_dominance_why(ours.total, base, misses)}", soft_wrap=True)
+
+
+def print_curves(con, det_set: str, reports: dict) -> None:
+    """Per egograph tracker, AP per threshold over its answers' confidence (all-point interpolated),
+    the baselines' points, and whether the curve passes at or above every baseline's point (at the
+    baseline's recall, precision at least the baseline's)."""
+    base = {k.split(" ", 1)[1]: v for k, v in reports.items() if k.split(" ")[1] in ("memory", "kf")}
+    ours = {k.split(" ", 1)[1]: v for k, v in reports.items() if k.split(" ")[1].startswith("graph")}
+    if not ours:
+        return
+    taus = next(iter(ours.values())).thresholds
+    head = " ".join(f"{t:>5g}" for t in taus)
+    con.print(f"average precision over confidence (%, all-point interpolated) at tau (m) {head}", soft_wrap=True)
+    for name, rep in ours.items():
+        curves = rep.curves()
+        if not curves:
+            continue
+        con.print(f"  {name:30s} " + " ".join(f"{100 * curves[t].ap:5.1f}" for t in taus), soft_wrap=True)
+    con.print("baselines' points, P/R %: " + "; ".join(
+        f"{name} " + " ".join(f"{100 * p:.1f}/{100 * r:.1f}" for p, r in zip(rep.total.precision, rep.total.recall))
+        for name, rep in base.items()), soft_wrap=True)
+    for name, rep in ours.items():
+        curves = rep.curves()
+        if not curves:
+            continue
+        below = [f"{b} at {t:g} m (P/R {100 * brep.total.precision[k]:.1f}/{100 * brep.total.recall[k]:.1f})"
+                 for k, t in enumerate(taus) for b, brep in base.items()
+                 if not curves[t].passes(brep.total.precision[k], brep.total.recall[k])]
+        con.print(f"{name}: curve at or above every baseline's point at every threshold" if not below else
+                  f"{name}: curve below " + "; ".join(below), soft_wrap=True)
 
 
 # ------------------------------------------------------------------ parser
@@ -575,6 +619,9 @@ def build_parser() -> argparse.ArgumentParser:
                    help=_tracker_help())
     s.add_argument("--lag", type=float, metavar="S", help="graph-causal: a frame's answer may use the frames up to "
                                                           "S seconds after it (graph.lag_s; default 0, causal)")
+    s.add_argument("--min-confidence", type=float, metavar="C",
+                   help="graph trackers: the operating point; the per-frame files hold the answers of confidence >= C "
+                        "(answers.tsv every answer; graph.answers.min_confidence, causal_min_confidence)")
     s.add_argument("--intervals", type=Path, help="interval trackers: also write the intervals JSON here "
                                                   "(it is always in RESULTS/intervals.json)")
     s.add_argument("--detections", default="svoe", help="folder of per-frame detection files, or a set name "
@@ -608,6 +655,9 @@ def build_parser() -> argparse.ArgumentParser:
     s.add_argument("--out", required=True, type=Path, help="smoothed results folder (with intervals.json)")
     s.add_argument("--intervals", type=Path, help="also write the intervals JSON here")
     s.add_argument("--causal", action="store_true", help="causal (iSAM2) instead of offline")
+    s.add_argument("--min-confidence", type=float, metavar="C",
+                   help="graph trackers: the operating point; the per-frame files hold the answers of confidence >= C "
+                        "(answers.tsv every answer; graph.answers.min_confidence, causal_min_confidence)")
     s.add_argument("--eval", action="store_true", help="evaluate the smoothed results against the annotations")
     _add_quiet(s)
     _add_overwrite(s)

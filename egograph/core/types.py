@@ -131,12 +131,16 @@ class TrackResult:
     intervals the per-frame predictions were made from, which the evaluation scores as they are.
     ``metadata``: tracker name, its configuration and whatever it reports about its run.
     ``solutions``: tracker-specific per-instance detail (the graph's segments and switches).
+    ``answers``: for trackers that answer every frame with a confidence (the graph trackers), every
+    answer ``{timestamp: [Prediction]}``; ``per_frame`` then holds those of at least the operating
+    point's confidence (``graph.answers.min_confidence``). None: ``per_frame`` is every answer.
     """
 
     per_frame: dict
     intervals: list | None = None
     metadata: dict = field(default_factory=dict)
     solutions: list = field(default_factory=list)
+    answers: dict | None = None
 
     @property
     def n_predictions(self) -> int:

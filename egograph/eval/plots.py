@@ -114,6 +114,7 @@ class TrackerRun:
     predictions: dict[int, np.ndarray]
     intervals: list[PositionInterval] | None = None
     report: EvalReport | None = None
+    detections: DetectionTicks | None = None   # the detections it was tracked with (the scene's when None)
 
 
 # --------------------------------------------------------------------------- numbers
@@ -243,7 +244,7 @@ def plot_timeline(scene: PlotScene, run: TrackerRun) -> bytes:
             for mask, c in ((has & np.isnan(err), _NO_TRUTH), (err <= lo, _BAND_COLOURS[0]),
                             ((err > lo) & (err <= hi), _BAND_COLOURS[1]), (err > hi, _BAND_COLOURS[2])):
                 ax.broken_barh(_spans(t, mask), (0.65, 0.7), facecolors=c)
-        det = scene.detections
+        det = scene.detections or run.detections
         if det is not None and inst in det.frames:
             frames = det.frames[inst]
             false = det.is_false.get(inst) if det.is_false is not None else None
@@ -264,12 +265,13 @@ def plot_timeline(scene: PlotScene, run: TrackerRun) -> bytes:
                Patch(color=_BAND_COLOURS[1], label=f"<= {ERROR_BANDS_M[1]:g} m"),
                Patch(color=_BAND_COLOURS[2], label=f"> {ERROR_BANDS_M[1]:g} m"),
                Patch(color=_NO_TRUTH, label="no true interval")]
-    if scene.detections is not None:
-        if scene.detections.is_false is not None:
+    shown = scene.detections or run.detections
+    if shown is not None:
+        if shown.is_false is not None:
             handles += [Patch(color=_TRUE_DET, label="true detection"), Patch(color=_FALSE_DET, label="false detection")]
         else:
             handles += [Patch(color=_UNKNOWN_DET, label="detection")]
-    det_name = f", detections {scene.detections.name}" if scene.detections is not None else ""
+    det_name = f", detections {shown.name}" if shown is not None else ""
     fig.suptitle(f"{scene.recording}: {run.name}{det_name}: timeline per instance")
     fig.legend(handles=handles, loc="outside lower center", ncols=min(len(handles), 6), fontsize=8, frameon=False)
     return png_bytes(fig)
@@ -387,6 +389,63 @@ def plot_metrics(scene: PlotScene, trackers: Sequence[TrackerRun]) -> bytes:
     fig.legend(*ax_e.get_legend_handles_labels(), loc="outside right upper", markerscale=3, fontsize=9,
                title="tracker")
     return png_bytes(fig)
+
+
+CURVES_HEIGHT_IN = 4.2
+
+
+def plot_curves(scene: PlotScene, trackers: Sequence[TrackerRun]) -> bytes | None:
+    """Precision against recall (percent) as the confidence threshold sweeps, one panel per
+    threshold τ, one line per tracker (its answers by their confidence, the fifth column), and each
+    tracker's operating point (what its per-frame files hold) as a marker; AP (all-point
+    interpolated) in the legend. None without an evaluation. PNG bytes."""
+    runs = [r for r in trackers if r.report is not None and r.report.answers is not None]
+    if not runs:
+        return None
+    taus = runs[0].report.thresholds
+    fig = _figure(CURVES_HEIGHT_IN)
+    axes = fig.subplots(1, len(taus), sharey=True, squeeze=False)[0]
+    for k, run in enumerate(trackers):
+        if run not in runs:
+            continue
+        c, mk = _tracker_colour(k), _TRACKER_MARKERS[k % len(_TRACKER_MARKERS)]
+        curves = run.report.curves()
+        tot = run.report.total
+        for j, (ax, tau) in enumerate(zip(axes, taus)):
+            cv = curves[tau]
+            ax.step(100 * cv.recall, 100 * cv.precision, where="post", color=c, linewidth=1.0,
+                    label=f"{run.name} (AP@{tau:g} {100 * cv.ap:.1f})" if j == 0 else None)
+            ax.plot([100 * tot.recall[j]], [100 * tot.precision[j]], marker=mk, color=c, markersize=7,
+                    markeredgecolor="black", linestyle="none")
+    for ax, tau in zip(axes, taus):
+        ax.set_title(f"τ = {tau:g} m")
+        ax.set_xlabel("recall (%)")
+        ax.set_xlim(0, 100)
+        ax.set_ylim(0, 100)
+        ax.grid(True, alpha=0.3)
+    axes[0].set_ylabel("precision (%)")
+    fig.suptitle(f"{scene.recording}: precision against recall over confidence (markers: operating points)")
+    fig.legend(loc="outside lower center", ncols=min(len(runs), 3), fontsize=8, frameon=False,
+               title="AP at the first threshold; the others in index.html", title_fontsize=8)
+    return png_bytes(fig)
+
+
+def curve_rows(trackers: Sequence[TrackerRun]) -> tuple[list[str], list[list[str]]]:
+    """Header and rows of the average-precision and calibration table: AP (percent, all-point
+    interpolated) per threshold and the expected calibration error at 0.25 m."""
+    from egograph.eval.curves import CALIBRATION_TAU, reliability
+
+    runs = [r for r in trackers if r.report is not None and r.report.answers is not None]
+    if not runs:
+        return [], []
+    taus = runs[0].report.thresholds
+    header = ["tracker"] + [f"AP@{threshold_label(t)}" for t in taus] + [f"ECE@{CALIBRATION_TAU:g}"]
+    rows = []
+    for run in runs:
+        curves = run.report.curves()
+        rel = reliability(run.report.answers, CALIBRATION_TAU)
+        rows.append([run.name] + [f"{100 * curves[t].ap:.1f}" for t in taus] + [f"{rel.ece:.3f}"])
+    return header, rows
 
 
 def breaks(scene: PlotScene) -> list[tuple[int, int]]:
@@ -547,6 +606,16 @@ def html_report(scene: PlotScene, trackers: Sequence[TrackerRun], images: Mappin
         out.append("</table>")
     else:
         out.append("<p>No evaluation: the recording has no annotated 3D centres.</p>")
+    header, rows = curve_rows(trackers)
+    if rows:
+        out.append("<h2>Average precision over confidence, and calibration</h2>")
+        out.append("<p>Each tracker's answers sorted by confidence (the per-frame files' fifth column, or every "
+                   "answer in answers.tsv): average precision in percent, all-point interpolated (the area under the "
+                   "precision envelope, as PASCAL VOC 2010+ and COCO without the 101-point sampling); expected "
+                   "calibration error of the confidence against the share of answers within 0.25 m (10 bins).</p>")
+        out.append("<table><tr>" + "".join(f"<th>{e(h)}</th>" for h in header) + "</tr>")
+        out += ["<tr>" + "".join(f"<td>{e(c)}</td>" for c in row) + "</tr>" for row in rows]
+        out.append("</table>")
     for title, files in images.items():
         out.append(f"<h2>{e(title)}</h2>")
         out += [f'<p><a href="{e(f)}"><img src="{e(f)}" alt="{e(title)}: {e(f)}"></a></p>' for f in files]

@@ -29,11 +29,16 @@ from typing import Mapping, Sequence
 
 import numpy as np
 
+from egograph.eval.curves import CALIBRATION_TAU, ScoredAnswers, pr_curves, reliability
 from egograph.eval.intervals import IntervalScore
 from egograph.eval.protocol import THRESHOLDS, Counts, SequenceResult
 from egograph.io.atomic import atomic_write_bytes, atomic_write_text
 
 DEFAULT_RATIO_COLUMNS = ("P@0.25", "P@1.5", "R@0.25", "R@1.5", "L2 (m)", "angle (rad)")
+
+AP_THRESHOLDS = (0.25, 1.0)
+"""Thresholds (metres) whose average precision over confidence the comparison shows beside the
+IT3DEgo columns (when a tracker carries confidences: :mod:`egograph.eval.curves`)."""
 
 FORMATS = ("md", "csv", "json")
 """Text formats of :func:`render_report` and :func:`render_comparison`."""
@@ -94,6 +99,7 @@ class SequenceEval:
     intervals: IntervalScore | None = None
     labels: Sequence[str] | None = None
     frames_without_file: int = 0
+    answers: ScoredAnswers | None = None   # every answer with its confidence, scored (egograph.eval.curves)
 
     def instance_key(self, instance: int) -> str:
         """``"seq/3(cup_1)"``, or ``"seq/3"`` when the name is unknown."""
@@ -117,13 +123,15 @@ class EvalReport:
         intervals: IntervalScore | None = None,
         labels: Sequence[str] | None = None,
         frames_without_file: int = 0,
+        answers: ScoredAnswers | None = None,
     ) -> None:
-        """Add one sequence's result (names must be unique; thresholds must match)."""
+        """Add one sequence's result (names must be unique; thresholds must match); ``answers``:
+        every answer with its confidence, for the precision-recall curves."""
         if name in self.sequences:
             raise ValueError(f"sequence {name!r} is already in the report")
         if result.total.thresholds != tuple(self.thresholds):
             raise ValueError(f"sequence {name!r} uses thresholds {result.total.thresholds}, report {self.thresholds}")
-        self.sequences[name] = SequenceEval(name, result, intervals, labels, int(frames_without_file))
+        self.sequences[name] = SequenceEval(name, result, intervals, labels, int(frames_without_file), answers)
 
     @property
     def total(self) -> Counts:
@@ -139,6 +147,19 @@ class EvalReport:
         return sum(s.result.n_frames for s in self.sequences.values())
 
     @property
+    def answers(self) -> ScoredAnswers | None:
+        """Every sequence's scored answers pooled (None unless every sequence has them)."""
+        seqs = list(self.sequences.values())
+        if not seqs or any(s.answers is None for s in seqs):
+            return None
+        return sum((s.answers for s in seqs), ScoredAnswers(self.thresholds))
+
+    def curves(self) -> dict:
+        """Pooled precision-recall curves over confidence per threshold ({} without answers)."""
+        a = self.answers
+        return pr_curves(a) if a is not None else {}
+
+    @property
     def frames_without_file(self) -> int:
         return sum(s.frames_without_file for s in self.sequences.values())
 
@@ -152,6 +173,11 @@ class EvalReport:
         out["n_sequences"] = len(self.sequences)
         out["n_frames"] = self.n_frames
         out["frames_without_file"] = self.frames_without_file
+        pooled = self.answers
+        if pooled is not None:  # curves over confidence (all-point interpolated AP) and calibration
+            out["curves"] = {threshold_label(t): c.to_json_dict() for t, c in pr_curves(pooled).items()}
+            tau = CALIBRATION_TAU if CALIBRATION_TAU in pooled.thresholds else pooled.thresholds[0]
+            out["reliability"] = reliability(pooled, tau).to_json_dict()
         out["per_sequence"] = {}
         out["per_instance"] = {}
         for s in self.sequences.values():
@@ -160,6 +186,8 @@ class EvalReport:
             seq["n_frames"] = s.result.n_frames
             seq["frames_without_file"] = s.frames_without_file
             seq["labels"] = list(s.labels) if s.labels is not None else None
+            if s.answers is not None:
+                seq["ap"] = {threshold_label(t): round(c.ap, 6) for t, c in pr_curves(s.answers).items()}
             out["per_sequence"][s.name] = seq
             for inst, c in sorted(s.result.per_instance.items()):
                 row = counts_metrics(c)
@@ -391,7 +419,9 @@ def _comparison(reports: Mapping[str, EvalReport], baseline: str | None,
         if tuple(rep.thresholds) != tuple(thresholds):
             raise ValueError(f"tracker {name!r} uses thresholds {rep.thresholds}, expected {thresholds}")
     labels = [threshold_label(t) for t in thresholds]
-    metric_cols = [f"P@{x}" for x in labels] + [f"R@{x}" for x in labels] + ["L2 (m)", "angle (rad)"]
+    ap_cols = [f"AP@{threshold_label(t)}" for t in AP_THRESHOLDS if t in thresholds] \
+        if any(rep.answers is not None for rep in reports.values()) else []
+    metric_cols = [f"P@{x}" for x in labels] + [f"R@{x}" for x in labels] + ap_cols + ["L2 (m)", "angle (rad)"]
     ratios = [c for c in ratio_columns if c in metric_cols] if baseline is not None else []
     unknown = [c for c in (ratio_columns if baseline is not None else []) if c not in metric_cols]
     if unknown:
@@ -402,6 +432,11 @@ def _comparison(reports: Mapping[str, EvalReport], baseline: str | None,
     for name, rep in reports.items():
         total = rep.total
         cells, vals = format_metric_cells(total), _metric_values(total)
+        curves = rep.curves() if ap_cols else {}
+        for t in AP_THRESHOLDS:
+            c = curves.get(t)
+            vals[f"AP@{threshold_label(t)}"] = 100 * c.ap if c is not None and c.n_gt else None
+            cells[f"AP@{threshold_label(t)}"] = _pct(c.ap, True) if c is not None and c.n_gt else NA
         row_text = [cells[c] for c in metric_cols]
         row_nums = [vals[c] for c in metric_cols]
         for c in ratios:
@@ -472,9 +507,12 @@ def comparison_rich_tables(
     ratio_heads = [f"{c} / base" for c in cmp.ratio_cols]
     p_cols = [c for c in cmp.metric_cols if c.startswith("P@")]
     r_cols = [c for c in cmp.metric_cols if c.startswith("R@")]
-    groups = [p_cols, r_cols, ["L2 (m)", "angle (rad)"]] + ([ratio_heads] if ratio_heads else [])
+    ap_cols = [c for c in cmp.metric_cols if c.startswith("AP@")]
+    groups = [p_cols, r_cols, [*ap_cols, "L2 (m)", "angle (rad)"]] + ([ratio_heads] if ratio_heads else [])
     cells = [dict(zip(cmp.metric_cols + ratio_heads, row)) for row in cmp.text.values()]
     caption = "P, R in %; n/a = undefined"
+    if any(c.startswith("AP@") for c in cmp.metric_cols):
+        caption += "; AP: all-point interpolated, over confidence, in %"
     if baseline is not None:
         caption += f"; base = {baseline}"
     return fit_tables(title, "tracker", list(cmp.text), groups, cells, width, caption=caption)

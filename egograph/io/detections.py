@@ -44,10 +44,16 @@ from egograph.io.textio import int_stem, iter_rows, listed_files, make_record, p
 
 T = TypeVar("T")
 
-METADATA_FILES = frozenset({"intervals.json", "config.yaml", "egograph.json", "adapt.json"})
+ANSWERS_FILE = "answers.tsv"
+"""Every answer of a tracker that answers every frame with a confidence, one line each
+(``ts instance x y z score``, tab-separated): the per-frame files hold only the operating point's
+(:func:`answers_text`)."""
+
+METADATA_FILES = frozenset({"intervals.json", "config.yaml", "egograph.json", "adapt.json", ANSWERS_FILE})
 """Files a results or detections folder may hold beside its per-frame ``<ts>.txt`` (the tracker's
-intervals, the resolved configuration, the run record, see :mod:`egograph.steps.outputs`, and an
-adapted detection's head record, :mod:`egograph.steps.adapt`); readers skip them."""
+intervals, the resolved configuration, the run record, see :mod:`egograph.steps.outputs`, an
+adapted detection's head record, :mod:`egograph.steps.adapt`, and every answer with its confidence,
+``answers.tsv``); readers skip them."""
 
 
 # --------------------------------------------------------------------------- per-frame folders
@@ -291,6 +297,26 @@ def read_results_dir(path: str | Path, timestamps: Iterable[int] | None = None) 
     With ``timestamps``, every given timestamp is a key (missing file -> []).
     """
     return _read_frame_dir(path, timestamps, read_results_file)
+
+
+def answers_text(answers: Mapping[int, Iterable[Prediction]]) -> str:
+    """Every answer, ``ts instance x y z score`` per line, tab-separated (ticks; world frame, metres; confidence), in
+    timestamp order: the contents of :data:`ANSWERS_FILE`."""
+    return "".join(f"{int(ts)}\t" + line.replace(" ", "\t") for ts in sorted(answers, key=int)
+                   for line in _results_text(answers[ts]).splitlines(keepends=True))
+
+
+def read_answers_file(path: str | Path) -> dict[int, list[Prediction]]:
+    """``ts -> answers`` of an :data:`ANSWERS_FILE` (errors name the file and line)."""
+    path = Path(path)
+    out: dict[int, list[Prediction]] = {}
+    for n, tok in iter_rows(path, 6, layout="ts instance x y z score"):
+        ts = parse_int(tok[0], path, n, "ts")
+        inst = parse_int(tok[1], path, n, "instance")
+        xyz = tuple(parse_float(t, path, n, a) for t, a in zip(tok[2:5], "xyz"))
+        score = parse_float(tok[5], path, n, "score")
+        out.setdefault(ts, []).append(make_record(path, n, Prediction, inst, xyz, score))
+    return out
 
 
 def write_results_dir(

@@ -22,6 +22,7 @@ import numpy as np
 
 from egograph.core.errors import InputError
 from egograph.core.types import TrackResult
+from egograph.eval.curves import ScoredAnswers, score_answers
 from egograph.eval.intervals import PredictedInterval
 from egograph.eval.loader import IGNORED_REASONS, FramePredictions, evaluate_loaded, load_sequence
 from egograph.eval.report import EvalReport
@@ -100,5 +101,22 @@ def evaluate(rec: Recording, results: str | Path | TrackResult, name: str | None
         seq.intervals = predicted_intervals(result.intervals)
     counts, intervals = evaluate_loaded(seq)
     report = EvalReport()
-    report.add(name or rec.name, counts, intervals, seq.labels, seq.predictions.frames_without_file)
+    report.add(name or rec.name, counts, intervals, seq.labels, seq.predictions.frames_without_file,
+               scored_answers(result.answers if result.answers is not None else result.per_frame, seq))
     return report
+
+
+def scored_answers(answers: dict, seq) -> ScoredAnswers:
+    """Every answer (``ts -> [Prediction]``; of one instance in one frame the later wins, as the
+    reference reads a file) counted against ``seq``'s GT intervals (:mod:`egograph.eval.curves`).
+    A tracker without an answers file is scored on its per-frame files, their fifth column its
+    confidence."""
+    frames = {}
+    n = len(seq.labels) if seq.labels is not None else None
+    for ts, preds in answers.items():
+        frame = {}
+        for p in preds:
+            if n is None or p.instance < n:  # as the evaluator ignores lines for ids beyond labels.csv
+                frame[p.instance] = (p.xyz, p.score)
+        frames[int(ts)] = frame
+    return score_answers(seq.timestamps, seq.gt, frames)

@@ -183,15 +183,37 @@ def build_scene(rec: Recording, cfg, detections: str | None = None) -> tuple[plo
     return scene, notes
 
 
-def load_run(rec: Recording, path: Path, name: str, evaluate_it: bool, strict: bool = False) -> plots.TrackerRun:
-    """One results folder: per-frame predictions, intervals, and the evaluation when asked."""
+def tracked_detections(path: Path) -> str | None:
+    """The detection set (or folder) a results folder was tracked with, from its run record, or None."""
+    prev = outputs.previous_record(path) or {}
+    obs = (prev.get("inputs") or {}).get("observations") or {}
+    spec = ((obs.get("provenance") or {}).get("detections") or {}).get("spec") if isinstance(obs, dict) else None
+    return str(spec) if spec else None
+
+
+def load_run(rec: Recording, path: Path, name: str, evaluate_it: bool, strict: bool = False,
+             cfg=None, ticks: dict | None = None) -> plots.TrackerRun:
+    """One results folder: per-frame predictions, intervals, the evaluation when asked and, with
+    ``cfg``, the detections it was tracked with (``ticks``: a cache by detection set)."""
     from egograph.steps.evaluate import evaluate
     from egograph.steps.track import read_result
 
     result = read_result(path, rec)
     report = evaluate(rec, path, name, strict=strict) if evaluate_it else None
+    dets = None
+    spec = tracked_detections(path) if cfg is not None else None
+    if spec is not None:
+        if ticks is None:
+            ticks = {}
+        if spec not in ticks:
+            try:
+                ticks[spec] = detection_ticks(rec, spec, cfg)
+            except (InputError, OSError) as exc:  # tracked from a folder since moved: say so, draw the rest
+                warnings.warn(f"{path}: its detections {spec!r} cannot be read for the timeline: {exc}", stacklevel=2)
+                ticks[spec] = None
+        dets = ticks[spec]
     return plots.TrackerRun(name=name, predictions=_predictions_array(result.per_frame, rec.timestamps),
-                            intervals=result.intervals, report=report)
+                            intervals=result.intervals, report=report, detections=dets)
 
 
 def plot(rec: Recording, results: Sequence[str | Path], out: str | Path, cfg, *, names: Sequence[str] | None = None,
@@ -200,7 +222,9 @@ def plot(rec: Recording, results: Sequence[str | Path], out: str | Path, cfg, *,
     (replaced as a whole when complete). See the module doc for the files."""
     names = check_results(results, names)
     scene, notes = build_scene(rec, cfg, detections)
-    runs = [load_run(rec, Path(r), n, bool(scene.gt), strict=cfg.io.strict) for r, n in zip(results, names)]
+    ticks: dict = {}
+    runs = [load_run(rec, Path(r), n, bool(scene.gt), strict=cfg.io.strict, cfg=None if detections else cfg,
+                     ticks=ticks) for r, n in zip(results, names)]
     slugs = _unique([plots.slug(n) for n in names])
     record = outputs.run_record("plot", cfg, {"recording": outputs.recording_digest(rec),
                                               "results": dict(zip(names, map(str, results))),
@@ -216,6 +240,9 @@ def plot(rec: Recording, results: Sequence[str | Path], out: str | Path, cfg, *,
             sections.setdefault(section, []).append(file)
 
         put("Errors, precision and recall", "metrics.png", plots.plot_metrics(scene, runs))
+        curves = plots.plot_curves(scene, runs)
+        if curves is not None:
+            put("Errors, precision and recall", "curves.png", curves)
         for run, s in zip(runs, slugs):
             put("Timelines", f"timeline_{s}.png", plots.plot_timeline(scene, run))
             put("Maps", f"map_{s}.png", plots.plot_map(scene, run))

@@ -9,7 +9,7 @@ from pathlib import Path
 from egograph.core.config import to_dict
 from egograph.core.types import TrackResult
 from egograph.geometry.observations import Observations
-from egograph.io.detections import read_results_dir, write_results_dir
+from egograph.io.detections import ANSWERS_FILE, answers_text, read_answers_file, read_results_dir, write_results_dir
 from egograph.io.recording import Recording
 from egograph.steps import outputs
 from egograph.steps.recording import labels
@@ -37,6 +37,8 @@ def results_files(rec: Recording, result: TrackResult, record: dict, cfg) -> dic
     if result.intervals is not None:
         files[INTERVALS_FILE] = intervals_json_text(result.intervals, result.metadata, timestamps=rec.timestamps,
                                                     labels=labels(rec), sequence=rec.name)
+    if result.answers is not None:
+        files[ANSWERS_FILE] = answers_text(result.answers)
     return files
 
 
@@ -47,9 +49,11 @@ def write_result(out: str | Path, rec: Recording, result: TrackResult, record: d
     return Path(out)
 
 
-def write_results(out: str | Path, rec: Recording, per_frame: dict) -> None:
-    """Only the per-frame files (the reference format), for callers that keep no run record."""
-    write_results_dir(out, per_frame, [int(t) for t in rec.timestamps])
+def write_results(out: str | Path, rec: Recording, per_frame: dict, answers: dict | None = None) -> None:
+    """Only the per-frame files (the reference format) and, when given, every answer
+    (``answers.tsv``), for callers that keep no run record."""
+    extra = {ANSWERS_FILE: answers_text(answers)} if answers is not None else None
+    write_results_dir(out, per_frame, [int(t) for t in rec.timestamps], extra_files=extra)
 
 
 def read_result(path: str | Path, rec: Recording) -> TrackResult:
@@ -64,7 +68,8 @@ def read_result(path: str | Path, rec: Recording) -> TrackResult:
     prev = outputs.previous_record(path)
     if prev is not None:
         metadata = {**metadata, "run": {k: prev.get(k) for k in ("step", "command", "egograph_version")}}
-    return TrackResult(per_frame=per_frame, intervals=intervals, metadata=metadata)
+    answers = read_answers_file(path / ANSWERS_FILE) if (path / ANSWERS_FILE).is_file() else None
+    return TrackResult(per_frame=per_frame, intervals=intervals, metadata=metadata, answers=answers)
 
 
 def track(rec: Recording, tracker: str, obs: Observations, cfg, out: str | Path | None = None, *,

@@ -7,6 +7,8 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
+import numpy as np
+
 from egograph.core.config import Checked, knob, rule_error, section
 from egograph.geometry.config import SUPPORT_GAP_M
 
@@ -166,6 +168,83 @@ class PlacesConfig(Checked):
             raise rule_error(self, "{} + {} must be <= 1", "put_back", "unseen_put_down")
 
 
+# Calibration knots fitted on tuning seeds 4-5 (900 frames, SVOE and MVPE) by tools/bench_confidence.py
+# --fit (docs/bench/bench_confidence-fit.json): [raw, calibrated] (graph.answers below).
+_OFFLINE_CALIBRATION = [[0.0, 0.0143], [0.001494, 0.0143], [0.187028, 0.2222], [0.235526, 0.3333], [0.250359, 0.9716], [0.377125,
+    0.9867], [0.59532, 0.9871], [0.919672, 0.9926], [0.958551, 1.0], [1.0, 1.0]]
+_NOISY_OFFLINE_CALIBRATION = [[0.0, 0.0], [0.000516, 0.0], [0.001, 0.1584], [0.044623, 0.3157], [0.2772, 0.4419], [0.30582, 0.5], [0.346754,
+    0.5833], [0.492061, 0.8138], [0.634915, 0.8396], [1.0, 0.8396]]
+_CAUSAL_CALIBRATION = [[0.0, 0.1202], [4e-06, 0.1202], [0.469686, 0.2311], [0.655012, 0.6667], [0.881915, 0.7521], [0.998911, 0.8333],
+    [0.999252, 0.8889], [0.999323, 0.9091], [0.999442, 0.9861], [0.99996, 0.9889], [0.999972, 0.9943],
+    [0.999988, 1.0], [1.0, 1.0]]
+_NOISY_CAUSAL_CALIBRATION = [[0.0, 0.0083], [5.1e-05, 0.0141], [0.058334, 0.0152], [0.1, 0.1], [0.349543, 0.4227], [0.517636, 0.5577],
+    [0.603604, 0.5622], [0.79776, 0.5819], [0.998757, 0.7567], [0.999443, 0.9268], [0.99945, 0.9574], [0.999492,
+    0.9782], [0.999964, 1.0], [1.0, 1.0]]
+_SMOOTH_CALIBRATION = [[0.0, 0.0745], [0.0115, 0.1429], [0.023211, 0.2], [0.283062, 0.2141], [0.411454, 0.2308], [0.41172, 0.3333],
+    [0.441762, 0.3632], [0.481763, 0.3818], [0.494875, 0.4498], [0.499643, 0.5122], [0.499683, 0.5185],
+    [0.499739, 0.5529], [0.499816, 0.5833], [0.499994, 0.6771], [1.0, 0.6771]]
+
+
+@dataclass
+class AnswersConfig(Checked):
+    every_frame: bool = knob(True, "every frame from an instance's enrollment on is answered (a stand at a place, "
+                                   "the hand while carried, the most probable place while unseen) with a calibrated "
+                                   "confidence; false: the old policy (answers only where a place has enough "
+                                   "support, nothing while carried)")
+    min_confidence: float = knob(0.35, "the operating point of the offline graph and of smooth: the per-frame files "
+                                       "hold the answers of at least this confidence (answers.tsv holds every "
+                                       "answer, for the precision-recall curves). On the tuning recordings (seeds "
+                                       "4-5, 900 frames, SVOE and MVPE pooled) the offline graph's P and R reach "
+                                       "every baseline's at every threshold from 0.05 to 0.65: 0.35 is the centre "
+                                       "(tools/bench_confidence.py --fit); egograph track/smooth --min-confidence "
+                                       "sets it and causal_min_confidence", min=0.0, max=1.0)
+    causal_min_confidence: float = knob(0.075, "the operating point of graph-causal (every lag), as min_confidence: "
+                                               "on the tuning recordings its P and R reach every baseline's from "
+                                               "0.05 to 0.1; 0.075 is the centre", min=0.0, max=1.0)
+    distance_m: float = knob(0.25, "the confidence is the probability that the answer lies within this distance "
+                                   "of the truth (what the calibration below was fitted for), metres", gt=0.0)
+    offline_calibration: list = knob(_OFFLINE_CALIBRATION,
+                                     "offline graph: raw confidence -> calibrated, as [raw, calibrated] knots joined "
+                                     "linearly (an isotonic fit on tuning recordings: tools/bench_confidence.py "
+                                     "--fit)")
+    causal_calibration: list = knob(_CAUSAL_CALIBRATION,
+                                    "graph-causal (every lag): raw confidence -> calibrated knots, as "
+                                    "offline_calibration")
+    smooth_calibration: list = knob(_SMOOTH_CALIBRATION,
+                                    "egograph smooth (the graph on another tracker's answers, whose scores it does "
+                                    "not read): raw confidence -> calibrated knots, as offline_calibration")
+    noisy_scale: float = knob(1.3, "a front-end whose fitted detection noise scale (graph.noise, the tracker's "
+                                   "own estimate of how far its lifted detections scatter) is at least this is "
+                                   "noisy: its answers are right less often at the same raw confidence, and take "
+                                   "the noisy_* knots below (between the scales the tuning front-ends fit: about "
+                                   "0.6 for MVPE-like boxes, 2.7 for SVOE-like)", gt=0.0)
+    noisy_offline_calibration: list = knob(_NOISY_OFFLINE_CALIBRATION, "offline_calibration of a noisy front-end")
+    noisy_causal_calibration: list = knob(_NOISY_CAUSAL_CALIBRATION, "causal_calibration of a noisy front-end "
+                                                                   "(online: the scale fitted so far)")
+    noisy_smooth_calibration: list = knob([[0.0, 0.0], [1.0, 1.0]],
+                                          "smooth_calibration of a noisy front-end (identity: on the tuning "
+                                          "recordings smoothing always fitted the smallest scale, 0.5)")
+
+    def knots(self, family: str, scale: float) -> list:
+        """The calibration knots of tracker ``family`` (offline, causal, smooth) at detection noise
+        scale ``scale``."""
+        return getattr(self, f"{'noisy_' if scale >= self.noisy_scale else ''}{family}_calibration")
+
+    def cross_check(self) -> None:
+        for name in ("offline_calibration", "causal_calibration", "smooth_calibration", "noisy_offline_calibration",
+                     "noisy_causal_calibration", "noisy_smooth_calibration"):
+            knots = getattr(self, name)
+            try:
+                arr = np.asarray(knots, dtype=float)
+                ok = arr.ndim == 2 and arr.shape[1] == 2 and len(arr) >= 2 and bool(np.all(np.diff(arr[:, 0]) > 0)) \
+                    and bool(np.all(np.diff(arr[:, 1]) >= 0))
+            except (TypeError, ValueError):
+                ok = False
+            if not ok:
+                raise rule_error(self, "{} must be [raw, calibrated] pairs, raw increasing, calibrated "
+                                       "non-decreasing", name)
+
+
 @dataclass
 class GraphConfig(Checked):
     score_threshold: float = _score_threshold("minimum matcher score of a detection the graph uses (the paper's 0.6; "
@@ -239,6 +318,8 @@ class GraphConfig(Checked):
     places: PlacesConfig = section(PlacesConfig, "offline: places pooled across motion breaks and the place chain "
                                                  "that says which one holds the instance at every frame "
                                                  "(egograph.track.places)")
+    answers: AnswersConfig = section(AnswersConfig, "what the graph trackers answer per frame, their confidence "
+                                                    "and the operating point (egograph.track.answers)")
 
 
 @dataclass

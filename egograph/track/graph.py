@@ -45,6 +45,7 @@ import numpy as np
 from egograph.core.types import PositionInterval, TrackResult
 from egograph.core.units import TICKS_PER_SECOND
 from egograph.geometry.observations import Observations
+from egograph.track.answers import calibrated, offline_answers, operating_point, predictions
 from egograph.track.causal import causal_tracker
 from egograph.track.chain import chunk_index, solve_instance_offline
 from egograph.track.config import GraphConfig
@@ -57,7 +58,7 @@ from egograph.track.places import (
     chance_of_place,
     carried_rows,
     claim_places,
-    place_chain,
+    place_chain_states,
     place_reality,
 )
 from egograph.track.segments import (
@@ -185,11 +186,14 @@ def _places_and_chains(solutions: list[InstanceSolution], t_frames: np.ndarray, 
             continue
         sol.places = kept[sol.instance]
         others = [p for j, ps in found.items() if j != sol.instance for p in ps]
-        runs = place_chain(sol.places, others, sol.candidates, candidate_covariances(sol.candidates, sol.camera, cfg),
-                           sol.score, sol.frames, carried_rows([seg.rows for seg in sol.chain_segments], sol.world, sol.camera, sol.range_m, cfg),
-                           len(t_frames), cfg, fps)
+        runs, path, post = place_chain_states(
+            sol.places, others, sol.candidates, candidate_covariances(sol.candidates, sol.camera, cfg), sol.score,
+            sol.frames, carried_rows([seg.rows for seg in sol.chain_segments], sol.world, sol.camera, sol.range_m, cfg),
+            len(t_frames), cfg, fps)
         sol.segments, sol.runs = [p.as_segment() for p in sol.places], runs
         sol.intervals = _place_intervals(sol, runs, t_frames, cfg, negative, reality[sol.instance])
+        if cfg.answers.every_frame:
+            sol.answers = offline_answers(sol, path, post, reality[sol.instance], len(t_frames), cfg)
     return sum(len(found[i]) - len(kept[i]) for i in found)
 
 
@@ -262,6 +266,16 @@ def graph_tracker(obs: Observations, timestamps: Sequence[int], cfg: GraphConfig
     intervals = sorted((iv for s in solutions for iv in s.intervals), key=lambda iv: (iv.instance, iv.t_start))
     pieces = [p for s in solutions for p in (s.pieces if s.pieces is not None else s.intervals)]
     per_frame = per_frame_predictions(pieces, t_frames)
+    answers = None
+    if cfg.answers.every_frame:  # every frame answered, calibrated; the files hold the operating point
+        answers = {int(t): [] for t in t_frames}
+        for s in solutions:
+            if s.answers is not None:
+                xyz, raw = s.answers
+                predictions(s.instance, xyz, calibrated(raw, cfg.answers.knots("offline", scales[-1])), t_frames,
+                            answers)
+        answers = {t: sorted(p, key=lambda q: q.instance) for t, p in answers.items()}
+        per_frame = operating_point(answers, cfg.answers)
     metadata = {
         "tracker": "graph-causal" if causal else "graph",
         "backfilled": (not causal),
@@ -277,7 +291,10 @@ def graph_tracker(obs: Observations, timestamps: Sequence[int], cfg: GraphConfig
         "noise_scale": scales[-1],
         "noise_scale_rounds": scales,
     }
-    return TrackResult(per_frame=per_frame, intervals=intervals, metadata=metadata, solutions=solutions)
+    if answers is not None:
+        metadata["min_confidence"] = cfg.answers.min_confidence
+    return TrackResult(per_frame=per_frame, intervals=intervals, metadata=metadata, solutions=solutions,
+                       answers=answers)
 
 
 def _causal_result(obs: Observations, t_frames: np.ndarray, cfg: GraphConfig, ids: list[int], lag_s: float | None,
@@ -301,4 +318,10 @@ def _causal_result(obs: Observations, t_frames: np.ndarray, cfg: GraphConfig, id
         "noise_scale": scales[-1],
         "noise_scale_rounds": scales,
     }
-    return TrackResult(per_frame=per_frame, intervals=intervals, metadata=metadata, solutions=solutions)
+    answers = None
+    if cfg.answers.every_frame:  # every frame answered, calibrated; the files hold the operating point
+        answers = {t: sorted(p, key=lambda q: q.instance) for t, p in per_frame.items()}
+        per_frame = operating_point(answers, cfg.answers, causal=True)
+        metadata["min_confidence"] = cfg.answers.causal_min_confidence
+    return TrackResult(per_frame=per_frame, intervals=intervals, metadata=metadata, solutions=solutions,
+                       answers=answers)

@@ -51,6 +51,7 @@ import numpy as np
 from egograph.core.types import PositionInterval, Prediction
 from egograph.core.units import TICKS_PER_SECOND
 from egograph.geometry.observations import Observations
+from egograph.track.answers import HAND_RAW, LAST_RAW
 from egograph.track.config import GraphConfig
 from egograph.track.detection_factor import lengths
 from egograph.track.noise_scale import refit
@@ -158,6 +159,9 @@ class _Instance:
     claim: tuple | None = None          # (centre, inliers) of the place it stands at, answered (_claim)
     claimed: tuple | None = None        # (version, claims version, places claimed) (_claimed)
     kept_spots: tuple | None = None     # (version, centres, covariances, inliers) of places of n >= 2 (spots)
+    last_xyz: np.ndarray | None = None  # its newest detection (world, metres): the answer while nothing better is known
+    last_frame: int = -1                # the PV frame of that detection
+    last_ts: int = -1                   # and its timestamp, ticks
 
     def place_arrays(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """Its places' centres (world, metres), covariances (m^2) and inlier counts, as arrays
@@ -240,6 +244,7 @@ class OnlineTracker:
         self._claim_xyz, self._claim_n, self._claim_on = np.zeros((0, 3)), np.zeros(0), np.zeros(0, bool)
         self._claim_row: dict[int, int] = {}
         self._claims_version = 0
+        self._calibration: tuple | None = None  # graph.answers.causal_calibration as arrays (_answer)
 
     # ------------------------------------------------------------------ the loop
 
@@ -410,6 +415,7 @@ class OnlineTracker:
             st.places[int(founded[r])].near_only = bool(rng[r] <= cfg.carry_range_m)
         for j in sorted({int(v) for v in joins if v >= 0}, reverse=True):
             delta, back = self._merge_into(st, j, delta, back)
+        st.last_xyz, st.last_frame, st.last_ts = world[-1], frame, ts
         if in_hand.any():
             for w in world[in_hand]:
                 st.hand_rows.append(w)
@@ -649,13 +655,54 @@ class OnlineTracker:
 
     def _answer(self, inst: int, st: _Instance, state: int, next_kind: int | None, ts: int,
                 lead: float | None = None) -> Prediction | None:
-        """The prediction of a state at frame time ``ts`` (None: nothing to report): a place's
-        current centre; at a place not yet seen, the place the sequence goes to next (lagged) or,
-        ``put_down_after_s`` after the last detection in hand, where the hand held the object.
-        ``lead``: for the newest frame, the state's max-marginal; below
-        ``places.min_answer_probability`` nothing is answered (later evidence may still, lagged)."""
-        if lead is not None and lead < self.cfg.places.min_answer_probability:
+        """The prediction of a state at frame time ``ts``, its score calibrated
+        (``graph.answers.causal_calibration``). With ``graph.answers.every_frame`` every frame is
+        answered (:meth:`_raw_answer`, else :meth:`_fallback_answer`); without, None where nothing is
+        reported (below ``places.min_answer_probability``, carried, unseen before
+        ``put_down_after_s``)."""
+        every = self.cfg.answers.every_frame
+        low = lead is not None and lead < self.cfg.places.min_answer_probability
+        pred = None if low and not every else self._raw_answer(inst, st, state, next_kind, ts, lead)
+        if pred is None and every:
+            pred = self._fallback_answer(inst, st, state, ts)
+        if pred is None:
             return None
+        if every:  # the calibration knots as arrays once (this runs per instance and frame)
+            if self._calibration is None or self._calibration[0] != self.scale:  # the scale fitted so far
+                knots = np.asarray(self.cfg.answers.knots("causal", self.scale), float)
+                self._calibration = (self.scale, np.ascontiguousarray(knots[:, 0]), np.ascontiguousarray(knots[:, 1]))
+            _, x, y = self._calibration
+            pred = Prediction(pred.instance, pred.xyz, min(max(float(np.interp(pred.score, x, y)), 0.0), 1.0))
+        return pred
+
+    def _fallback_answer(self, inst: int, st: _Instance, state: int, ts: int) -> Prediction | None:
+        """The answer where the chain reports nothing: carried, the hand's last position (raw 0);
+        unseen (standing at a place not among its places), the newest detection when it is newer
+        than every inlier of the place of the best stand score (that place is then left behind), else
+        that place (raw, both: that place's share of the frame's scores, halved), else the hand's
+        last position; with no place and no hand, the newest detection (raw ``LAST_RAW``)."""
+        kind = state_kind(state)
+        held = [xyz for t, xyz in st.hands if t <= ts]
+        if kind == -1 and held:
+            return Prediction(inst, tuple(float(v) for v in held[-1]), HAND_RAW)
+        if kind == -2 and st.places:
+            stands = st.delta[2::2][:len(st.places)]
+            j = int(np.argmax(stands))
+            share = 0.5 * float(np.exp(stands[j] - np.logaddexp.reduce(st.delta)))
+            if st.last_xyz is not None and st.last_frame > st.places[j].last_frame:
+                return Prediction(inst, tuple(float(v) for v in st.last_xyz), share)
+            return Prediction(inst, st.places[j].xyz_tuple, share)
+        if held:
+            return Prediction(inst, tuple(float(v) for v in held[-1]), HAND_RAW)
+        if st.last_xyz is not None:
+            return Prediction(inst, tuple(float(v) for v in st.last_xyz), LAST_RAW)
+        return None
+
+    def _raw_answer(self, inst: int, st: _Instance, state: int, next_kind: int | None, ts: int,
+                    lead: float | None) -> Prediction | None:
+        """The uncalibrated prediction of a state: a place's current centre; at a place not yet
+        seen, the place the sequence goes to next (lagged) or, ``put_down_after_s`` after the last
+        detection in hand, where the hand held the object; None otherwise."""
         kind = state_kind(state)
         if kind >= 0:
             return self._place_prediction(inst, st, kind, lead)
@@ -666,7 +713,11 @@ class OnlineTracker:
             if after > 0:
                 due = ts - after * TICKS_PER_SECOND
                 held = [xyz for t, xyz in st.hands if t <= ts]
-                if held and next(t for t, _ in reversed(st.hands) if t <= ts) <= due:
+                last_held = next((t for t, _ in reversed(st.hands) if t <= ts), None)
+                if held and last_held <= due:
+                    if self.cfg.answers.every_frame and st.last_xyz is not None and st.last_ts > last_held:
+                        # a detection since the hand let go: where it was put down (memory's rule)
+                        return Prediction(inst, tuple(float(v) for v in st.last_xyz), 0.1)
                     return Prediction(inst, tuple(float(v) for v in held[-1]), 0.1)
         return None
 

@@ -555,12 +555,21 @@ def place_chain(places: Sequence[Place], others: Sequence[Place], cands: np.ndar
                 score: np.ndarray, frames: np.ndarray, in_hand: np.ndarray, n_frames: int, cfg: GraphConfig,
                 fps: float) -> list[PlaceRun]:
     """An instance's place chain solved offline: its runs (MAP path) with their posterior confidence."""
+    return place_chain_states(places, others, cands, cov, score, frames, in_hand, n_frames, cfg, fps)[0]
+
+
+def place_chain_states(places: Sequence[Place], others: Sequence[Place], cands: np.ndarray, cov: np.ndarray,
+                       score: np.ndarray, frames: np.ndarray, in_hand: np.ndarray, n_frames: int, cfg: GraphConfig,
+                       fps: float) -> tuple[list[PlaceRun], np.ndarray, np.ndarray]:
+    """:func:`place_chain`, with the MAP path (T,) and the posterior (T, S) it was read from (every
+    frame's answer and its confidence: :mod:`egograph.track.answers`)."""
     log_e = emissions(places, others, cands, cov, score, frames, in_hand, n_frames, cfg)
     log_a, log_prior = transitions(len(places), cfg, fps)
     seen = np.zeros(n_frames, bool)
     seen[frames] = True
     post = posterior(log_e, log_a, log_prior)
-    return state_runs(unseen_moves_at_crossing(map_path(log_e, log_a, log_prior), seen, post), post, len(places))
+    path = unseen_moves_at_crossing(map_path(log_e, log_a, log_prior), seen, post)
+    return state_runs(path, post, len(places)), path, post
 
 
 def unseen_moves_at_crossing(path: np.ndarray, seen: np.ndarray, post: np.ndarray) -> np.ndarray:

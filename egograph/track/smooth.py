@@ -53,5 +53,7 @@ def smooth_predictions(rec, per_frame: Mapping[int, Sequence[Prediction]], cfg, 
     from egograph.track.graph import graph_tracker
 
     obs = predictions_to_observations(per_frame, rec.timestamps, rec.pv_poses, rec.pv_valid)
-    g = dataclasses.replace(cfg, score_threshold=0.0, alias_rounds=0)
+    g = dataclasses.replace(cfg, score_threshold=0.0, alias_rounds=0,  # and its own calibration of confidence
+                            answers=dataclasses.replace(cfg.answers, offline_calibration=cfg.answers.smooth_calibration,
+                                                        noisy_offline_calibration=cfg.answers.noisy_smooth_calibration))
     return graph_tracker(obs, rec.timestamps, g, causal=causal, progress=progress)
