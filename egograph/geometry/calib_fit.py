@@ -231,8 +231,10 @@ def _hypotheses(frame: FitFrame, cand: FitCandidate, depth_factor: float, cfg: C
         limit = _mesh_range(scene, unit.reshape(-1, 3), to_world).reshape(r.shape) + cfg.mesh_slack_m
         below = rk <= limit[..., None]
         last = np.where(below.any(-1), below.shape[-1] - 1 - np.argmax(below[..., ::-1], axis=-1), -1)
-        rk = np.where(np.arange(len(k)) == last[..., None], rk, np.nan)
-    pts = unit[:, :, None, :] * rk[..., None]                            # (P, 2, K, 3)
+        # one hypothesis per pixel: (P, 2, 1)
+        rk = np.take_along_axis(rk, np.maximum(last, 0)[..., None], -1)
+        rk[last < 0] = np.nan
+    pts = unit[:, :, None, :] * rk[..., None]                            # (P, 2, K or 1, 3)
     return pts.reshape(len(pts), -1, 3)
 
 
@@ -255,8 +257,12 @@ def _sample_dt(dt: np.ndarray, uv: np.ndarray, step: float) -> np.ndarray:
     j0 = np.minimum(s[..., 0].astype(np.int64), w - 2)
     i0 = np.minimum(s[..., 1].astype(np.int64), h - 2)
     tu, tv = s[..., 0] - j0, s[..., 1] - i0
-    d = dt.astype(np.float32) if dt.dtype != np.float32 else dt
-    v = ((1 - tv) * ((1 - tu) * d[i0, j0] + tu * d[i0, j0 + 1]) + tv * ((1 - tu) * d[i0 + 1, j0] + tu * d[i0 + 1, j0 + 1]))
+    tu, tv = tu.astype(np.float32), tv.astype(np.float32)
+    flat = dt.reshape(-1)
+    at = i0 * w + j0
+    a, b, c, e = (flat[at].astype(np.float32), flat[at + 1].astype(np.float32), flat[at + w].astype(np.float32),
+                  flat[at + w + 1].astype(np.float32))
+    v = (1 - tv) * (a + tu * (b - a)) + tv * (c + tu * (e - c))
     return np.where(inside, v * np.float32(step), np.nan)
 
 
@@ -280,17 +286,30 @@ class Registered:
     step: float                # PV px per unit of the frames' stored distances
 
 
-def register(rec, sample: FitSample, cand: FitCandidate, cfg: CalibFitConfig) -> Registered:
-    """Every sampled discontinuity hypothesis registered into its PV frame through ``cand``."""
+def hypotheses(rec, sample: FitSample, cand: FitCandidate, cfg: CalibFitConfig) -> list[np.ndarray]:
+    """Per sampled frame the AHAT camera points (P, 2K, 3) of its discontinuity pairs' hypotheses under
+    ``cand`` (mesh-unwrapped with ``cand``'s chain when the recording has a mesh)."""
+    idx = np.array([f.index for f in sample.frames], int)
+    dposes, dok = depth_poses_at(rec, idx, cand.time_offset_ms)
+    to_node = invert_rigid(np.asarray(cand.ahat.extrinsics, np.float64))
+    scene = _scene(rec, cfg)
+    return [_hypotheses(f, cand, sample.depth_factor, cfg, to_node @ dpose if ok else None, scene)
+            for f, dpose, ok in zip(sample.frames, dposes, dok)]
+
+
+def register(rec, sample: FitSample, cand: FitCandidate, cfg: CalibFitConfig,
+             points: list[np.ndarray] | None = None) -> Registered:
+    """Every sampled discontinuity hypothesis registered into its PV frame through ``cand``;
+    ``points``: the hypotheses (:func:`hypotheses`) to register, kept fixed while a calibration is
+    refined (else those of ``cand``)."""
+    points = hypotheses(rec, sample, cand, cfg) if points is None else points
     idx = np.array([f.index for f in sample.frames], int)
     dposes, dok = depth_poses_at(rec, idx, cand.time_offset_ms)
     k = np.asarray(cand.pv.intrinsics, np.float64)
     to_node = invert_rigid(np.asarray(cand.ahat.extrinsics, np.float64))
-    scene = _scene(rec, cfg)
     out = []
-    for f, dpose, ok in zip(sample.frames, dposes, dok):
+    for f, pts, dpose, ok in zip(sample.frames, points, dposes, dok):
         pv_pose = rec.pv_poses[f.index]
-        pts = _hypotheses(f, cand, sample.depth_factor, cfg, to_node @ dpose if ok else None, scene)
         if not ok or not pose_validity(pv_pose):
             out.append(np.full(pts.shape[:-1] + (2,), np.nan))
             continue
@@ -304,21 +323,33 @@ def register(rec, sample: FitSample, cand: FitCandidate, cfg: CalibFitConfig) ->
     return Registered(out, sample.frames, dt_step(cfg))
 
 
-def _frame_costs(reg: Registered, shift: np.ndarray | None = None, stride: int = 1) -> tuple[np.ndarray, int]:
-    costs, pairs = [], 0
-    for uv, f in zip(reg.uv, reg.frames):
-        q = uv[::stride] if shift is None else uv[::stride] + shift
-        d = _sample_dt(f.dt, q, reg.step)
-        with np.errstate(all="ignore"):
-            best = np.nanmin(np.where(np.isnan(d), np.inf, d), axis=1)
-        best = best[np.isfinite(best)]
-        pairs += len(best)
-        costs.append(float(best.mean()) if len(best) else np.nan)
-    return np.array(costs), pairs
+def _frame_costs(reg: Registered, shifts: np.ndarray | None = None, stride: int = 1) -> tuple[np.ndarray, int]:
+    """Per frame the mean over its pairs of the nearest hypothesis' distance (PV px): (F,), or (S, F)
+    with every registered point moved by each of ``shifts`` (S, 2); and the pairs scored (unshifted)."""
+    n_shift = 1 if shifts is None else len(shifts)
+    costs, pairs = np.full((n_shift, len(reg.uv)), np.nan), 0
+    for n, (uv, f) in enumerate(zip(reg.uv, reg.frames)):
+        q = uv[::stride][None] if shifts is None else uv[::stride][None] + shifts[:, None, None, :]
+        d = _sample_dt(f.dt, q, reg.step)                                 # (S, P', H)
+        best = np.min(np.where(np.isnan(d), np.inf, d), axis=2)
+        ok = np.isfinite(best)
+        pairs += int(ok[0].sum())
+        with np.errstate(invalid="ignore", divide="ignore"):
+            costs[:, n] = np.where(ok, best, 0.0).sum(1) / ok.sum(1)
+    return (costs[0] if shifts is None else costs), pairs
 
 
-SHIFTS_PX = (-16.0, -8.0, -4.0, 0.0, 4.0, 8.0, 16.0)
-"""Image shifts (px, in x and y) tried to find how far a calibration is off (:attr:`FitScore.offset_px`)."""
+SHIFTS_PX = np.array([(r * np.cos(a), r * np.sin(a)) for r in (4.0, 8.0, 16.0)
+                      for a in np.radians(np.arange(0, 360, 45))])
+"""Image shifts (PV px: 8 directions at 4, 8 and 16 px) tried to find how far a calibration is off
+(:attr:`FitScore.offset_px`)."""
+
+
+def fit_cost(rec, sample: FitSample, cand: FitCandidate, cfg: CalibFitConfig,
+             points: list[np.ndarray] | None = None) -> float:
+    """The score of ``cand`` alone (no spread, no shift test): what a refinement minimises."""
+    costs, _ = _frame_costs(register(rec, sample, cand, cfg, points))
+    return float(np.nanmean(costs)) if np.isfinite(costs).any() else float("nan")
 
 
 def fit_score(rec, sample: FitSample, cand: FitCandidate, cfg: CalibFitConfig) -> FitScore:
@@ -328,18 +359,13 @@ def fit_score(rec, sample: FitSample, cand: FitCandidate, cfg: CalibFitConfig) -
     good = np.isfinite(per_frame)
     score = float(per_frame[good].mean()) if good.any() else float("nan")
     spread = float(per_frame[good].std()) if good.sum() > 1 else 0.0
-    # the global shift test on every 4th pair (its cost grows with the shifts tried)
-    base, _ = _frame_costs(reg, np.zeros(2), 4)
-    best, best_shift = float(np.nanmean(base)) if np.isfinite(base).any() else np.nan, np.zeros(2)
-    for dx in SHIFTS_PX:
-        for dy in SHIFTS_PX:
-            if dx == 0 and dy == 0:
-                continue
-            c, _ = _frame_costs(reg, np.array([dx, dy]), 4)
-            v = float(np.nanmean(c)) if np.isfinite(c).any() else np.nan
-            if v < best:
-                best, best_shift = v, np.array([dx, dy])
-    gain = float(np.nanmean(base) - best) if np.isfinite(best) else 0.0
+    # the global shift test on every 4th pair
+    shifted, _ = _frame_costs(reg, np.vstack([np.zeros((1, 2)), SHIFTS_PX]), 4)
+    with np.errstate(all="ignore"):
+        means = np.nanmean(shifted, axis=1)
+    best = int(np.nanargmin(means)) if np.isfinite(means).any() else 0
+    best_shift = np.vstack([np.zeros((1, 2)), SHIFTS_PX])[best]
+    gain = float(means[0] - means[best]) if np.isfinite(means[best]) else 0.0
     return FitScore(cand.name, score, spread, per_frame, pairs, best_shift, gain)
 
 

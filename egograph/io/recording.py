@@ -632,6 +632,9 @@ class Recording:
     svoe_dir: str = ""               # io.svoe_dir / io.mvpe_dir: where to look first for enrollments
     mvpe_dir: str = ""
     lookups: list = field(default_factory=list, repr=False)
+    # how well each candidate calibration folder fits (egograph.steps.calibration.CalibrationFit), set by
+    # the step that chose the folder; None when nothing was scored
+    calibration_fit: object = field(default=None, repr=False, compare=False)
     _index: dict = field(default_factory=dict, repr=False)
     _pv_files: FrameFiles | None = field(default=None, repr=False)
     _depth_files: dict = field(default_factory=dict, repr=False)   # PV index -> AHAT file name
