@@ -121,3 +121,39 @@ def choose_calibration(rec, cfg, explicit: bool, strict: bool, always_score: boo
                                f"{fc.max_offset_px:g}; --strict / io.strict); `egograph info --refine-calibration OUT` "
                                "fits a calibration to it")
     return used, fit
+
+
+def refine_calibration_folder(rec, cfg, out: str | Path, frames: int = 100, overwrite: bool = False):
+    """Fit the AHAT extrinsics and time offset of ``rec``'s calibration to its frames
+    (:func:`egograph.geometry.calib_refine.refine_calibration` on ``frames`` sampled frames) and write
+    the result as a calibration folder ``out`` in the release's format (``rm_depth_ahat/`` with
+    ``time_offset.bin``, ``personal_video/`` as it was), with ``fit.json`` (the change, the scores
+    before and after) and the run record, in one rename. ``out`` already holding this exact run is
+    left as it is (returns None)."""
+    import json
+
+    from egograph.core.config import to_dict
+    from egograph.geometry.calib_refine import refine_calibration
+    from egograph.io.atomic import atomic_dir
+    from egograph.io.calibration import write_ahat_calibration, write_pv_calibration
+    from egograph.steps import outputs
+
+    out = Path(out)
+    if out.resolve() == Path(rec.calibration_dir).resolve():
+        raise InputError(out, "the refined calibration would replace the one it starts from; choose another folder")
+    record = outputs.run_record("refine-calibration", cfg, {"recording": outputs.recording_digest(rec),
+                                                            "calibration": str(rec.calibration_dir),
+                                                            "frames": frames},
+                                depends_on={"calib_fit": to_dict(cfg.calib_fit)})
+    if outputs.up_to_date(out, record, overwrite):
+        return None
+    start = candidate(Path(rec.calibration_dir))
+    result = refine_calibration(rec, start, cfg.calib_fit, frames=frames)
+    if not result.before.per_frame.size:
+        raise InputError(rec.seq_dir / "pv", "no frame with a PV image, an AHAT frame and both poses: nothing to fit")
+    with atomic_dir(out) as tmp:
+        write_ahat_calibration(tmp / "rm_depth_ahat", result.candidate.ahat)
+        write_pv_calibration(tmp / "personal_video", result.candidate.pv)
+        (tmp / "fit.json").write_text(json.dumps({"from": str(rec.calibration_dir), **result.to_json()}, indent=1))
+        outputs.write_run_files(tmp, record, cfg)
+    return result
