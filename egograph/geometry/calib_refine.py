@@ -25,6 +25,9 @@ from egograph.io.poses import so3_exp, so3_log
 FINE = {"blur_px": 2.0, "edge_percentile": 85.0, "truncate_px": 10.0}
 """The fine stage's edges: sharp (2 px blur), dense, 10 px reach."""
 
+METHOD = "powell"
+"""scipy's minimiser of each stage: Powell's line searches along the 7 axes (steps ``STEPS``)."""
+
 STEPS = np.array([1.0, 1.0, 1.0, 2.0, 2.0, 2.0, 20.0])
 """Initial simplex steps of the coarse stage: deg, deg, deg, cm, cm, cm, ms (the fine stage: a quarter)."""
 
@@ -85,9 +88,13 @@ def _stage(rec, sample: FitSample, start: FitCandidate, cfg: CalibFitConfig, ste
                                             start.time_offset_ms + x[6]), cfg, points)
         return c if np.isfinite(c) else 1e9
 
-    simplex = np.vstack([np.zeros(7), np.diag(steps)])
-    res = minimize(cost, np.zeros(7), method="Nelder-Mead",
-                   options={"initial_simplex": simplex, "maxfev": max_evaluations, "xatol": 1e-2, "fatol": 1e-4})
+    if METHOD == "powell":
+        res = minimize(cost, np.zeros(7), method="Powell", options={"direc": np.diag(steps), "xtol": 1e-2,
+                                                                    "ftol": 1e-5, "maxfev": max_evaluations})
+    else:
+        res = minimize(cost, np.zeros(7), method="Nelder-Mead",
+                       options={"initial_simplex": np.vstack([np.zeros(7), np.diag(steps)]),
+                                "maxfev": max_evaluations, "xatol": 1e-2, "fatol": 1e-4})
     x = res.x
     return x, int(res.nfev)
 

@@ -93,8 +93,9 @@ def choose_calibration(rec, cfg, explicit: bool, strict: bool, always_score: boo
                     + (", ".join(f"{n} {why}" for why, n in sample.skipped.items()) or "no frame with both poses")
                     + ")")
         if several and fit.by_number is None:
-            raise InputError(rec.seq_dir, f"{len(folders)} calibration folders and none named for this sequence; "
-                                          f"the fit cannot choose ({fit.note}); pass --calibration DIR")
+            names = ", ".join(p.name for p in folders)
+            raise InputError(rec.seq_dir, f"{len(folders)} calibration folders ({names}) and none named for this "
+                                          f"sequence's number; the fit cannot choose ({fit.note}); pass --calibration DIR")
         return rec.calibration_dir, fit
     fit.scores, _ = score_folders(rec, folders, cfg, sample)
     used = rec.calibration_dir
