@@ -100,7 +100,7 @@ def _stage(rec, sample: FitSample, start: FitCandidate, cfg: CalibFitConfig, ste
 
 
 def refine_calibration(rec, cand: FitCandidate, cfg: CalibFitConfig, frames: int = 100,
-                       max_evaluations: int = 600) -> CalibrationRefinement:
+                       max_evaluations: int = 1500) -> CalibrationRefinement:
     """Refine ``cand`` on ``frames`` sampled frames of ``rec`` (coarse then fine stage, at most
     ``max_evaluations`` cost evaluations each); the scores before and after are on the coarse
     stage's sample with ``cfg``'s edges."""
@@ -110,7 +110,8 @@ def refine_calibration(rec, cand: FitCandidate, cfg: CalibFitConfig, frames: int
     fine_sample = prepare_fit(rec, fine, frames=np.array([f.index for f in sample.frames]))
     before = fit_score(rec, sample, cand, coarse)
     current, spent = cand, 0
-    for stage_cfg, stage_sample, steps in ((coarse, sample, STEPS), (fine, fine_sample, STEPS / 4)):
+    stages = ((coarse, sample, STEPS), (fine, fine_sample, STEPS / 4), (fine, fine_sample, STEPS / 16))
+    for stage_cfg, stage_sample, steps in stages:  # the last: a restart, which Powell's search often needs
         x, n = _stage(rec, stage_sample, current, stage_cfg, steps, max_evaluations)
         spent += n
         current = perturbed(current, np.radians(x[:3]), x[3:6] / 100.0, current.time_offset_ms + x[6])
