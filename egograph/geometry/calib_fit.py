@@ -39,6 +39,7 @@ from dataclasses import dataclass, field
 import cv2
 import numpy as np
 
+from egograph.core.errors import InputError
 from egograph.geometry.config import CalibFitConfig
 from egograph.geometry.hl2ss import invert_rigid
 from egograph.io.calibration import AhatCalibration, PvCalibration
@@ -179,9 +180,12 @@ def prepare_fit(rec, cfg: CalibFitConfig, frames: np.ndarray | None = None) -> F
     for i in idx:
         path = rec.pv_path(int(i))
         rgb = cv2.imread(str(path), cv2.IMREAD_GRAYSCALE) if path.is_file() else None
-        raw = rec.depth_raw(int(i)) if rgb is not None else None
+        try:
+            raw = rec.depth_raw(int(i)) if rgb is not None else None
+        except InputError:   # not AHAT depth (reported where the frame is used): leave it out here
+            raw = None
         if rgb is None or raw is None:
-            why = "no readable PV image" if rgb is None else "no AHAT frame"
+            why = "no readable PV image" if rgb is None else "no readable AHAT frame"
             skipped[why] = skipped.get(why, 0) + 1
             continue
         px, vals = depth_discontinuities(raw, per_raw, rec.ahat.alias_m, cfg.jump_m, cfg.max_pairs)
