@@ -265,3 +265,25 @@ def test_perturbation_change_round_trips(rgb_rec):
     c1 = invert_rigid(moved.ahat.extrinsics)[3, :3]
     assert np.linalg.norm(c1 - c0) == pytest.approx(0.03)
     assert moved.pv is true.pv   # the refinement leaves the PV calibration as it is
+
+
+def test_refined_calibration_is_written_as_a_release_folder(fit_root, rgb_rec, tmp_path):
+    """The folder format and the run record (a short search on 6 frames; the accuracy of the
+    refinement is measured by tools/bench_calib_fit.py on a 300-frame recording)."""
+    from egograph.steps.calibration import refine_calibration_folder
+
+    true = true_candidate(rgb_rec)
+    start = _release_layout(fit_root, tmp_path / "data", {"calibrations_vid1_17": perturb(true, "rot1")})
+    rec = open_recording(start, config())
+    out = tmp_path / "refined"
+    r = refine_calibration_folder(rec, config(), out, frames=6, max_evaluations=40)
+    assert r.after.score < r.before.score
+    ahat = read_ahat_calibration(out / "rm_depth_ahat")
+    assert np.allclose(ahat.extrinsics, r.candidate.ahat.extrinsics, atol=1e-6)
+    assert ahat.time_offset_ms == pytest.approx(r.time_offset_ms, abs=1e-3)
+    fit = json.loads((out / "fit.json").read_text())
+    assert fit["before"]["score_px"] == pytest.approx(r.before.score) and fit["after"]["score_px"] == pytest.approx(r.after.score)
+    assert json.loads((out / "egograph.json").read_text())["step"] == "refine-calibration"
+    again = open_recording(start, config(), calibration=out)
+    assert np.allclose(again.ahat.extrinsics, ahat.extrinsics)
+    assert refine_calibration_folder(rec, config(), out, frames=6, max_evaluations=40) is None   # up to date

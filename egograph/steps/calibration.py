@@ -124,7 +124,8 @@ def choose_calibration(rec, cfg, explicit: bool, strict: bool, always_score: boo
     return used, fit
 
 
-def refine_calibration_folder(rec, cfg, out: str | Path, frames: int = 100, overwrite: bool = False):
+def refine_calibration_folder(rec, cfg, out: str | Path, frames: int = 100, overwrite: bool = False,
+                              max_evaluations: int = 1500):
     """Fit the AHAT extrinsics and time offset of ``rec``'s calibration to its frames
     (:func:`egograph.geometry.calib_refine.refine_calibration` on ``frames`` sampled frames) and write
     the result as a calibration folder ``out`` in the release's format (``rm_depth_ahat/`` with
@@ -144,12 +145,12 @@ def refine_calibration_folder(rec, cfg, out: str | Path, frames: int = 100, over
         raise InputError(out, "the refined calibration would replace the one it starts from; choose another folder")
     record = outputs.run_record("refine-calibration", cfg, {"recording": outputs.recording_digest(rec),
                                                             "calibration": str(rec.calibration_dir),
-                                                            "frames": frames},
+                                                            "frames": frames, "max_evaluations": max_evaluations},
                                 depends_on={"calib_fit": to_dict(cfg.calib_fit)})
     if outputs.up_to_date(out, record, overwrite):
         return None
     start = candidate(Path(rec.calibration_dir))
-    result = refine_calibration(rec, start, cfg.calib_fit, frames=frames)
+    result = refine_calibration(rec, start, cfg.calib_fit, frames=frames, max_evaluations=max_evaluations)
     if not result.before.per_frame.size:
         raise InputError(rec.seq_dir / "pv", "no frame with a PV image, an AHAT frame and both poses: nothing to fit")
     with atomic_dir(out) as tmp:
