@@ -3,9 +3,9 @@ to the rig (hence to the PV camera) and the AHAT time offset that minimise the f
 (:mod:`egograph.geometry.calib_fit`).
 
 Three searches (scipy's Powell) over 7 numbers -- a rotation vector (deg) and a translation (cm)
-applied to the AHAT camera in its own frame, and the time offset (ms) -- on the edges of
-``calib_fit`` (40 px reach: finds errors of degrees and centimetres), each restarted from the last
-with a quarter of its steps. The alias hypotheses of the depth edges are unwrapped once per search
+applied to the AHAT camera in its own frame, and the time offset (ms): on the coarse edges of
+``calib_fit`` (40 px reach: finds errors of degrees and centimetres), then twice on fine edges
+(``FINE``), each from the last result with a quarter of its steps. The alias hypotheses of the depth edges are unwrapped once per search
 with its starting calibration and then held fixed, so the cost is continuous in the 7 numbers. The
 rays (uv2xy) and the PV intrinsics are kept.
 """
@@ -23,13 +23,7 @@ from egograph.geometry.hl2ss import invert_rigid
 from egograph.io.poses import so3_exp, so3_log
 
 FINE = {"blur_px": 2.0, "edge_percentile": 85.0, "truncate_px": 10.0}
-"""Sharp (2 px blur), dense edges with 10 px reach: tried for a final stage and dropped (see
-:func:`refine_calibration`)."""
-
-METHOD = "powell"
-"""scipy's minimiser of each search: Powell's line searches along the 7 axes (steps ``STEPS``);
-"nelder-mead" the simplex (on seed 5, 60 frames it left 0.23 deg / 4.6 mm / 0.3 ms of the injected
-2 deg / 3 cm / 40 ms, but on 100 frames stopped at 0.83 deg / 22 mm: not robust)."""
+"""The later searches' edges: sharp (2 px blur), dense, 10 px reach."""
 
 STEPS = np.array([1.0, 1.0, 1.0, 2.0, 2.0, 2.0, 20.0])
 """First steps of the first search: deg, deg, deg, cm, cm, cm, ms (each restart: a quarter of the last's)."""
@@ -80,7 +74,7 @@ def change_between(a: FitCandidate, b: FitCandidate) -> tuple[np.ndarray, np.nda
 
 
 def _stage(rec, sample: FitSample, start: FitCandidate, cfg: CalibFitConfig, steps: np.ndarray,
-           max_evaluations: int) -> tuple[np.ndarray, int]:
+           max_evaluations: int, method: str = "powell") -> tuple[np.ndarray, int]:
     from scipy.optimize import minimize
 
     points = hypotheses(rec, sample, start, cfg)
@@ -91,7 +85,7 @@ def _stage(rec, sample: FitSample, start: FitCandidate, cfg: CalibFitConfig, ste
                                             start.time_offset_ms + x[6]), cfg, points)
         return c if np.isfinite(c) else 1e9
 
-    if METHOD == "powell":
+    if method == "powell":
         res = minimize(cost, np.zeros(7), method="Powell", options={"direc": np.diag(steps), "xtol": 1e-2,
                                                                     "ftol": 1e-5, "maxfev": max_evaluations})
     else:
@@ -110,10 +104,14 @@ def refine_calibration(rec, cand: FitCandidate, cfg: CalibFitConfig, frames: int
     sample = prepare_fit(rec, coarse)
     before = fit_score(rec, sample, cand, coarse)
     current, spent = cand, 0
-    # Restarts on the coarse edges with smaller steps: the fine edges (FINE) score a point 0.2 deg / 9 mm
-    # off the truth better than the truth (seed 5, 100 frames: 2.049 against 2.089 px), the coarse ones
-    # do not (8.04 against 7.85 px); an edge blurred by 6 px is located without that bias.
-    stages = ((coarse, sample, STEPS), (coarse, sample, STEPS / 4), (coarse, sample, STEPS / 16))
+    # Powell on the coarse edges (capture), then on the fine edges, restarted once with smaller steps.
+    # Measured on seed 5 (100 frames, 2 deg / 3 cm / 40 ms injected), residual rotation / translation /
+    # time offset: this schedule 0.22 deg / 11.1 mm / 0.0 ms; coarse edges only (Powell x3) 0.29 deg /
+    # 21 mm; Powell then Nelder-Mead x2 0.31 deg / 21 mm; Nelder-Mead coarse + fine 0.83 deg / 22 mm.
+    # The rotation about the AHAT x axis and the translation along y (and z) form a shallow valley.
+    fine = dataclasses.replace(coarse, **FINE)
+    fine_sample = prepare_fit(rec, fine, frames=np.array([f.index for f in sample.frames]))
+    stages = ((coarse, sample, STEPS), (fine, fine_sample, STEPS / 4), (fine, fine_sample, STEPS / 16))
     for stage_cfg, stage_sample, steps in stages:
         x, n = _stage(rec, stage_sample, current, stage_cfg, steps, max_evaluations)
         spent += n
