@@ -109,7 +109,8 @@ class CalibFitConfig(Checked):
     margin_sigmas: float = knob(3.0, "... and by more than this many standard errors of the frame-by-frame "
                                      "difference", min=0.0)
     max_offset_px: float = knob(6.0, "a calibration does not fit when shifting every registered depth edge by one "
-                                     "image offset longer than this (PV px; shifts of 4, 8 and 16 px in x and y are "
-                                     "tried; 8 px is 0.46 deg of rotation at the synthetic PV focal) lowers its score by more than offset_gain_px; --strict refuses it",
-                                min=0.0)
+                                     "image offset longer than this (PV px; 8 directions at 4, 8 and 16 px are "
+                                     "tried; 8 px is 0.46 deg of rotation at the synthetic PV focal) lowers its "
+                                     "score by more than offset_gain_px; --strict refuses it. Not caught this way: "
+                                     "a 1 cm or 20 ms error (their shift is 4 px or less on seed 4)", min=0.0)
     offset_gain_px: float = knob(0.1, "see max_offset_px (PV px)", min=0.0)
