@@ -111,6 +111,7 @@ class CalibFitConfig(Checked):
     max_offset_px: float = knob(6.0, "a calibration does not fit when shifting every registered depth edge by one "
                                      "image offset longer than this (PV px; 8 directions at 4, 8 and 16 px are "
                                      "tried; 8 px is 0.46 deg of rotation at the synthetic PV focal) lowers its "
-                                     "score by more than offset_gain_px; --strict refuses it. Not caught this way: "
-                                     "a 1 cm or 20 ms error (their shift is 4 px or less on seed 4)", min=0.0)
+                                     "score by more than offset_gain_px; --strict refuses it. A 1 cm or 20 ms error is "
+                                     "caught this way on some recordings (seed 4: 8 px) and not on others (seed 3: "
+                                     "4 px); 0.5 deg on both", min=0.0)
     offset_gain_px: float = knob(0.1, "see max_offset_px (PV px)", min=0.0)
