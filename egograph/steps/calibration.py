@@ -124,7 +124,7 @@ def choose_calibration(rec, cfg, explicit: bool, strict: bool, always_score: boo
     return used, fit
 
 
-def refine_calibration_folder(rec, cfg, out: str | Path, frames: int = 100, overwrite: bool = False,
+def refine_calibration_folder(rec, cfg, out: str | Path, frames: int = 200, overwrite: bool = False,
                               max_evaluations: int = 1500):
     """Fit the AHAT extrinsics and time offset of ``rec``'s calibration to its frames
     (:func:`egograph.geometry.calib_refine.refine_calibration` on ``frames`` sampled frames) and write
