@@ -138,7 +138,7 @@ def test_every_option_has_help_and_tracker_lists_its_choices(capsys):
 def test_an_unexpected_error_is_one_line_and_a_log_file(tiny_rec, tmp_path, capsys, monkeypatch):
     import egograph.steps.info as info
 
-    def broken(rec, depth_samples=5):
+    def broken(rec, depth_samples=5, cfg=None):
         raise ValueError("operands could not be broadcast together")
 
     monkeypatch.setattr(info, "summarize", broken)

@@ -264,15 +264,20 @@ def test_info_lists_found_and_not_found(release, tmp_path, capsys, recwarn):
 
 
 def test_calibration_group_by_sequence_number(release, tmp_path, capsys, recwarn):
-    """Two groups and a sequence number neither covers: one line naming both, exit 2; --calibration
-    picks one."""
+    """Two groups and a sequence number neither covers: by number alone (calib_fit.select=false) one
+    line naming both, exit 2; with the fit, the best-fitting one is used with a warning naming both;
+    --calibration picks one."""
     root = tmp_path / "data"
     shutil.copytree(release, root, symlinks=True)
     cal = root / "calibrations"
     (cal / "calibrations_vid1_17").rename(cal / "calibrations_vid6_17")
-    code, _, err = run(["info", str(root)], capsys, recwarn)
+    code, _, err = run(["info", str(root), "--set", "calib_fit.select=false"], capsys, recwarn)
     assert code == 2
     assert "calibrations_vid18_50" in err and "calibrations_vid6_17" in err and "--calibration" in err
+    code, _, err = run(["info", str(root)], capsys, recwarn)
+    assert code == 0, err
+    assert "no calibration folder is named for this sequence; using the best-fitting" in err
+    assert "calibrations_vid18_50" in err and "calibrations_vid6_17" in err
     code, _, err = run(["info", str(root), "--calibration", str(cal / "calibrations_vid6_17")], capsys, recwarn)
     assert code == 0, err
 

@@ -71,3 +71,47 @@ class LiftConfig(Checked):
     def result_knobs(self) -> dict:
         """The knobs the observations depend on (cache keys): all but ``decode_threads``."""
         return {f.name: getattr(self, f.name) for f in fields(self) if f.name != "decode_threads"}
+
+
+@dataclass
+class CalibFitConfig(Checked):
+    """How well a calibration registers the AHAT depth with the PV frames (``egograph.geometry.calib_fit``),
+    and how the calibration folder of a sequence is chosen with it."""
+
+    select: bool = knob(True, "of several calibration folders found for a sequence, use the best-fitting one when "
+                              "the one named by the sequence's number fits clearly worse (margin_px, margin_sigmas), "
+                              "with a warning; false: by number only, as the release's notebooks do")
+    frames: int = knob(40, "PV frames sampled (evenly over the recording) to score a calibration: each is decoded "
+                           "and edged once, then every candidate is scored on the same frames", min=2)
+    blur_px: float = knob(6.0, "Gaussian blur (sigma, PV px) before the edges are found: fine texture makes no edge, "
+                               "an object's outline does (2 px left so many texture edges that a 0.5 deg error "
+                               "already cost as much as a 3 deg one)", min=0.0)
+    edge_percentile: float = knob(93.0, "Canny's upper threshold at this percentile of the frame's own gradient "
+                                        "magnitude (the lower at 0.4 of it): as many edges in a dark frame as in a "
+                                        "bright one", min=1.0, max=99.9)
+    truncate_px: float = knob(40.0, "a depth edge costs its distance to the nearest PV edge, at most this much (PV px): "
+                                    "blur, hands and bare walls cost every calibration alike; 40 px keeps a 3 deg "
+                                    "error (52 px at the synthetic PV focal) costing more than a 2 deg one", gt=0.0)
+    jump_m: float = knob(0.1, "AHAT neighbours whose ranges differ by more than this (modulo the alias distance) "
+                              "make a depth discontinuity, metres", gt=0.0)
+    max_pairs: int = knob(3000, "depth discontinuities used per frame at most (an even stride over them)", min=10)
+    max_range_m: float = knob(3.5, "alias hypotheses of a wrapped range are tried up to this range, metres", gt=0.0)
+    use_mesh: bool = knob(True, "resolve each depth edge pixel's alias with the recording's HoloLens mesh (the robust "
+                                "lift's rule; imports Open3D); without a mesh, or false, every alias hypothesis is "
+                                "tried and the nearest to a PV edge counts, which blunts the score")
+    mesh_slack_m: float = knob(0.15, "with use_mesh: take the largest r + k*alias not beyond the mesh range plus this, "
+                                     "metres", min=0.0)
+    margin_px: float = knob(0.15, "the number-chosen calibration fits clearly worse than the best when its score is "
+                                  "higher by more than this (PV px, mean over the sampled frames) ... Chosen on "
+                                  "synthetic recordings (seed 3, 60 frames; checked on seed 5, 300 frames): the "
+                                  "smallest errors to catch cost 0.7 / 1.5 px (1 cm), 0.8 / 3.9 px (20 ms), 2.8 / "
+                                  "2.1 px (0.5 deg); identical folders differ by 0", min=0.0)
+    margin_sigmas: float = knob(3.0, "... and by more than this many standard errors of the frame-by-frame "
+                                     "difference", min=0.0)
+    max_offset_px: float = knob(6.0, "a calibration does not fit when shifting every registered depth edge by one "
+                                     "image offset longer than this (PV px; 8 directions at 4, 8 and 16 px are "
+                                     "tried; 8 px is 0.46 deg of rotation at the synthetic PV focal) lowers its "
+                                     "score by more than offset_gain_px; --strict refuses it. A 1 cm or 20 ms error is "
+                                     "caught this way on some recordings (seed 4: 8 px) and not on others (seed 3: "
+                                     "4 px); 0.5 deg on both", min=0.0)
+    offset_gain_px: float = knob(0.1, "see max_offset_px (PV px)", min=0.0)

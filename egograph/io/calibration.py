@@ -2,7 +2,8 @@
 
 ``calibrations/rm_depth_ahat/``: uv2xy.bin (H x W x 2), extrinsics.bin (4x4, rig node ->
 AHAT camera, row vectors), scale.bin, alias.bin (wrap distance, mm), intrinsics.bin (4x4),
-undistort_map.bin (H x W x 2).
+undistort_map.bin (H x W x 2); optionally time_offset.bin (1 value, ms; egograph's addition, see
+``AhatCalibration.time_offset_ms``).
 ``calibrations/personal_video/``: intrinsics.bin (4x4, hl2ss PV form), extrinsics.bin (4x4,
 rig node -> PV camera), focal_length.bin (2), principal_point.bin (2), radial_distortion.bin (3),
 tangential_distortion.bin (2), projection.bin (4x4 = extrinsics @ intrinsics).
@@ -39,6 +40,10 @@ class AhatCalibration:
     # Values the geometry layer derives from the rays once per calibration (e.g. its pixel lookup),
     # keyed by what they are; not part of the calibration's value (compare=False).
     derived: dict = field(default_factory=dict, repr=False, compare=False)
+    # AHAT capture time minus the time its pose is keyed at, ms: the AHAT frame is registered with the
+    # AHAT pose stream interpolated at its key plus this (``time_offset.bin``, written by ``egograph info
+    # --refine-calibration``; the release has none: 0).
+    time_offset_ms: float = 0.0
 
     @property
     def alias_m(self) -> float:
@@ -85,6 +90,9 @@ def _read_matrix(path: Path) -> np.ndarray:
     return _read_f32(path, 16).reshape(4, 4)
 
 
+TIME_OFFSET_FILE = "time_offset.bin"
+"""Optional file of an ``rm_depth_ahat/`` folder: ``AhatCalibration.time_offset_ms`` (one float32, ms)."""
+
 LUT_NAMES = ("Depth AHaT_lut.bin", "ahat_lut.bin")
 """Names a Microsoft StreamRecorder AHAT ray table may have in an ``rm_depth_ahat/`` folder."""
 
@@ -128,7 +136,9 @@ def _read_ahat_calibration(folder: Path, h: int, w: int) -> AhatCalibration:
         undistort = np.zeros((h, w, 2), np.float32)  # hl2ss folders always have one; nothing reads it
     else:
         undistort = undistort_map_from_rays(uv2xy, ray_valid, intrinsics)
+    offset = folder / TIME_OFFSET_FILE
     return AhatCalibration(
+        time_offset_ms=float(_read_f32(offset, 1)[0]) if offset.is_file() else 0.0,
         uv2xy=uv2xy,
         extrinsics=_read_matrix(folder / "extrinsics.bin"),
         scale=float(_read_f32(folder / "scale.bin", 1)[0]),
@@ -348,6 +358,8 @@ def write_ahat_calibration(folder: str | Path, calib: AhatCalibration) -> None:
     _write_f32(folder / "alias.bin", [calib.alias_mm])
     _write_f32(folder / "intrinsics.bin", calib.intrinsics)
     _write_f32(folder / "undistort_map.bin", calib.undistort_map)
+    if calib.time_offset_ms:  # absent means 0 (the release's folders have none)
+        _write_f32(folder / TIME_OFFSET_FILE, [calib.time_offset_ms])
 
 
 def write_pv_calibration(folder: str | Path, calib: PvCalibration) -> None:
@@ -398,6 +410,56 @@ def _group_covers(folder: Path, numbers: list[int]) -> bool | None:
     return any(lo <= n <= hi for n in numbers)
 
 
+@dataclass
+class CalibrationChoice:
+    """The calibration folders found for a sequence and the one its number names.
+
+    ``candidates``: every folder at the nearest level holding one (see :func:`find_calibration_dir`);
+    ``by_number``: the one taken without looking at the data (the only candidate, or the group whose
+    range holds the sequence's number), None when that rule names none or several (``why`` says which).
+    """
+
+    candidates: list[Path]
+    by_number: Path | None
+    why: str = ""
+
+
+def calibration_choice(seq_dir: str | Path) -> CalibrationChoice:
+    """Every calibration folder at the nearest level above ``seq_dir`` and the one chosen by the
+    sequence's number (:func:`find_calibration_dir` without ``explicit``); InputError naming the
+    levels tried when there is none."""
+    seq_dir = Path(seq_dir).resolve()
+    numbers = [int(n) for n in _NUMBERS.findall(seq_dir.name)]
+    tried = []
+    for base in [seq_dir, *list(seq_dir.parents)[:3]]:
+        tried.append(f"{base}/calibrations*/")
+        cands = _calibration_candidates(base)
+        if len(cands) == 1:
+            return CalibrationChoice(cands, cands[0], "the only calibration folder")
+        if cands:
+            covering = [c for c in cands if _group_covers(c, numbers)]
+            if len(covering) == 1:
+                return CalibrationChoice(cands, covering[0], "named for this sequence's number "
+                                                             f"({', '.join(map(str, numbers))})")
+            names = ", ".join(c.name for c in cands)
+            return CalibrationChoice(cands, None, f"{len(cands)} calibration folders in {base} ({names}) and "
+                                                  f"{'several' if covering else 'none'} of them named for this "
+                                                  f"sequence's number ({', '.join(map(str, numbers)) or 'none in its name'})")
+    raise InputError(seq_dir, "no calibration folder (with rm_depth_ahat/ inside) found; tried "
+                              + ", ".join(tried) + "; pass --calibration DIR")
+
+
+def explicit_calibration_dir(explicit: str | Path) -> Path:
+    """A calibration folder given on the command line: that folder, or its ``calibrations/`` child;
+    InputError naming both when neither holds ``rm_depth_ahat/``."""
+    p = Path(explicit)
+    for cand in (p, p / "calibrations"):
+        if _is_calibration(cand):
+            return cand
+    raise InputError(p, f"not a calibration folder (tried {p / 'rm_depth_ahat'}, "
+                        f"{p / 'calibrations' / 'rm_depth_ahat'})")
+
+
 def find_calibration_dir(seq_dir: str | Path, explicit: str | Path | None = None) -> Path:
     """The calibration folder (holding ``rm_depth_ahat/`` and ``personal_video/``) of a sequence.
 
@@ -406,30 +468,12 @@ def find_calibration_dir(seq_dir: str | Path, explicit: str | Path | None = None
     release's per-group folders ``calibrations_<group>/`` (beside or inside ``calibrations/``, any
     case). The nearest level with a candidate decides: one candidate is taken; of several, the group
     whose name ends in a range ``<first>_<last>`` (``calibrations_vid1_17``) holding a number of the
-    sequence name (``raw_video_03`` -> 3). InputError naming what was tried otherwise.
+    sequence name (``raw_video_03`` -> 3). InputError naming what was tried otherwise. (Which of
+    several candidates fits the data best: :mod:`egograph.steps.calibration`.)
     """
     if explicit is not None:
-        p = Path(explicit)
-        for cand in (p, p / "calibrations"):
-            if _is_calibration(cand):
-                return cand
-        raise InputError(p, f"not a calibration folder (tried {p / 'rm_depth_ahat'}, "
-                            f"{p / 'calibrations' / 'rm_depth_ahat'})")
-    seq_dir = Path(seq_dir).resolve()
-    numbers = [int(n) for n in _NUMBERS.findall(seq_dir.name)]
-    tried = []
-    for base in [seq_dir, *list(seq_dir.parents)[:3]]:
-        tried.append(f"{base}/calibrations*/")
-        cands = _calibration_candidates(base)
-        if len(cands) == 1:
-            return cands[0]
-        if cands:
-            covering = [c for c in cands if _group_covers(c, numbers)]
-            if len(covering) == 1:
-                return covering[0]
-            names = ", ".join(c.name for c in cands)
-            raise InputError(seq_dir, f"{len(cands)} calibration folders in {base} ({names}) and "
-                                      f"{'several' if covering else 'none'} of them named for this sequence's number "
-                                      f"({', '.join(map(str, numbers)) or 'none in its name'}); pass --calibration DIR")
-    raise InputError(seq_dir, "no calibration folder (with rm_depth_ahat/ inside) found; tried "
-                              + ", ".join(tried) + "; pass --calibration DIR")
+        return explicit_calibration_dir(explicit)
+    choice = calibration_choice(seq_dir)
+    if choice.by_number is None:
+        raise InputError(Path(seq_dir).resolve(), choice.why + "; pass --calibration DIR")
+    return choice.by_number

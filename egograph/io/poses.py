@@ -92,3 +92,61 @@ def write_pose_json(path: str | Path, timestamps: np.ndarray, poses: np.ndarray)
     """Write ``{"<ts>": 4x4}`` with full float precision (shortest repr round-trips exactly)."""
     body = {str(int(t)): np.asarray(p, dtype=np.float64).tolist() for t, p in zip(timestamps, poses)}
     atomic_write_text(path, json.dumps(body))
+
+
+# ---------------------------------------------------------------- interpolation between samples
+
+def so3_log(rot: np.ndarray) -> np.ndarray:
+    """Rotation matrices (..., 3, 3) -> rotation vectors (..., 3) (axis times angle, radians), with
+    ``rot = so3_exp(v)``; exact to the float precision below pi."""
+    r = np.asarray(rot, dtype=np.float64)
+    cos = np.clip((np.trace(r, axis1=-2, axis2=-1) - 1.0) / 2.0, -1.0, 1.0)
+    theta = np.arccos(cos)
+    w = np.stack([r[..., 2, 1] - r[..., 1, 2], r[..., 0, 2] - r[..., 2, 0], r[..., 1, 0] - r[..., 0, 1]], -1)
+    sin = np.sin(theta)
+    # theta / (2 sin theta) -> 1/2 as theta -> 0 (series below 1e-6 rad)
+    factor = np.where(theta > 1e-6, theta / (2.0 * np.where(sin > 1e-12, sin, 1.0)), 0.5 + theta ** 2 / 12.0)
+    return w * factor[..., None]
+
+
+def so3_exp(vec: np.ndarray) -> np.ndarray:
+    """Rotation vectors (..., 3) (radians) -> rotation matrices (..., 3, 3) (Rodrigues)."""
+    v = np.asarray(vec, dtype=np.float64)
+    theta = np.linalg.norm(v, axis=-1)
+    k = np.zeros(v.shape[:-1] + (3, 3))
+    k[..., 0, 1], k[..., 0, 2], k[..., 1, 2] = -v[..., 2], v[..., 1], -v[..., 0]
+    k[..., 1, 0], k[..., 2, 0], k[..., 2, 1] = v[..., 2], -v[..., 1], v[..., 0]
+    small = theta < 1e-6
+    t = np.where(small, 1.0, theta)
+    a = np.where(small, 1.0 - theta ** 2 / 6.0, np.sin(t) / t)
+    b = np.where(small, 0.5 - theta ** 2 / 24.0, (1.0 - np.cos(t)) / t ** 2)
+    return np.eye(3) + a[..., None, None] * k + b[..., None, None] * (k @ k)
+
+
+def interpolate_poses(timestamps: np.ndarray, poses: np.ndarray, valid: np.ndarray,
+                      query: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Poses (row-vector 4x4) of a pose stream at times ``query`` (same ticks as ``timestamps``,
+    sorted): between the two valid samples around each query, the rotation along the geodesic and
+    the translation on the straight line; at the stream's ends the nearest valid sample's motion is
+    extrapolated from its neighbour (at most one sample period). Returns ``(poses (M,4,4), ok (M,))``;
+    NaN and False where fewer than two valid samples bracket or neighbour the query."""
+    ts = np.asarray(timestamps, dtype=np.int64)[np.asarray(valid, bool)]
+    ps = np.asarray(poses, dtype=np.float64)[np.asarray(valid, bool)]
+    q = np.asarray(query, dtype=np.int64)
+    out = np.full((len(q), 4, 4), np.nan)
+    if len(ts) < 2:
+        return out, np.zeros(len(q), bool)
+    hi = np.clip(np.searchsorted(ts, q, side="right"), 1, len(ts) - 1)
+    lo = hi - 1
+    span = (ts[hi] - ts[lo]).astype(np.float64)
+    s = (q - ts[lo]) / np.where(span > 0, span, 1.0)
+    # within the stream, or at most one sample period beyond its ends
+    ok = (s >= -1.0) & (s <= 2.0) & (span > 0)
+    a, b = ps[lo], ps[hi]
+    rel = so3_log(np.swapaxes(a[:, :3, :3], -1, -2) @ b[:, :3, :3])
+    out[:, :3, :3] = a[:, :3, :3] @ so3_exp(rel * s[:, None])
+    out[:, 3, :3] = a[:, 3, :3] + s[:, None] * (b[:, 3, :3] - a[:, 3, :3])
+    out[:, :3, 3] = 0.0
+    out[:, 3, 3] = 1.0
+    out[~ok] = np.nan
+    return out, ok

@@ -51,7 +51,7 @@ from egograph.io.calibration import (
     read_ahat_calibration,
     read_pv_calibration,
 )
-from egograph.io.poses import read_pose_json
+from egograph.io.poses import interpolate_poses, read_pose_json
 
 
 def mesh_raycasting_scene(mesh):
@@ -508,10 +508,12 @@ def _invalid_note(valid: np.ndarray) -> str:
 
 
 def _join_depth_poses(seq_dir: Path, ts: np.ndarray, depth_files: FrameFiles, tol: int, policy: str, strict: bool,
-                      sync_ms: float):
+                      sync_ms: float, offset_ms: float = 0.0):
     """AHAT poses joined to the PV frames ``ts`` by nearest timestamp within ``tol`` ticks ->
-    ``(ahat timestamps, depth_poses (N,4,4), depth_valid (N,), depth_ts (N,) or -1, Lookup)``.
-    Without ``depth_ahat_pose.json`` the AHAT frame files give the timestamps (and no pose)."""
+    ``(ahat timestamps, depth_poses (N,4,4), depth_valid (N,), depth_ts (N,) or -1, Lookup)``. Without
+    ``depth_ahat_pose.json`` the AHAT frame files give the timestamps (and no pose). With the
+    calibration's ``offset_ms`` (``AhatCalibration.time_offset_ms``) each joined frame takes the
+    pose stream interpolated at its key plus the offset (:func:`~egograph.io.poses.interpolate_poses`)."""
     depth_file = seq_dir / "depth_ahat_pose.json"
     n = len(ts)
     depth_poses = np.full((n, 4, 4), np.nan)
@@ -529,6 +531,10 @@ def _join_depth_poses(seq_dir: Path, ts: np.ndarray, depth_files: FrameFiles, to
     ok = has & dvalid[np.maximum(j, 0)]
     depth_poses[ok] = dposes[j[ok]]
     depth_valid[ok] = True
+    if offset_ms:
+        shifted, good = interpolate_poses(dts, dposes, dvalid, depth_ts[ok] + int(round(offset_ms * 1e4)))
+        depth_poses[ok] = shifted
+        depth_valid[ok] = good
     exact = int((depth_ts[has] == ts[has]).sum())
     offsets = (depth_ts[has] - ts[has]) if has.any() else np.zeros(0, np.int64)
     parts = [f"{int(has.sum())} of {n} PV frames joined within {sync_ms:g} ms"]
@@ -626,6 +632,9 @@ class Recording:
     svoe_dir: str = ""               # io.svoe_dir / io.mvpe_dir: where to look first for enrollments
     mvpe_dir: str = ""
     lookups: list = field(default_factory=list, repr=False)
+    # how well each candidate calibration folder fits (egograph.steps.calibration.CalibrationFit), set by
+    # the step that chose the folder; None when nothing was scored
+    calibration_fit: object = field(default=None, repr=False, compare=False)
     _index: dict = field(default_factory=dict, repr=False)
     _pv_files: FrameFiles | None = field(default=None, repr=False)
     _depth_files: dict = field(default_factory=dict, repr=False)   # PV index -> AHAT file name
@@ -651,6 +660,7 @@ class Recording:
         calib_dir = find_calibration_dir(seq_dir, calibration)
         lookups.append(Lookup("calibration", calib_dir, [str(calibration) if calibration else f"{seq_dir} and up to "
                                                          "3 parents: calibrations*/"]))
+        ahat = read_ahat_calibration(calib_dir / "rm_depth_ahat")
         ann = locate_annotations(seq_dir, annotations)
         lookups.append(ann)
         if ann.found is None:
@@ -658,13 +668,13 @@ class Recording:
                            + _tried_text(ann.tried) + "; pass --annotations DIR")
         tol = int(round(depth_sync_ms * TICKS_PER_SECOND / 1000.0))
         depth_files = FrameFiles.scan(seq_dir / "depth_ahat")
-        dts, depth_poses, depth_valid, depth_ts, look = _join_depth_poses(seq_dir, ts, depth_files, tol, policy,
-                                                                          strict, depth_sync_ms)
+        dts, depth_poses, depth_valid, depth_ts, look = _join_depth_poses(
+            seq_dir, ts, depth_files, tol, policy, strict, depth_sync_ms, ahat.time_offset_ms)
         lookups.append(look)
         rec = cls(
             seq_dir=seq_dir, timestamps=ts, pv_poses=pv_poses, pv_valid=pv_valid,
             depth_poses=depth_poses, depth_valid=depth_valid,
-            ahat=read_ahat_calibration(calib_dir / "rm_depth_ahat"),
+            ahat=ahat,
             pv=read_pv_calibration(calib_dir / "personal_video"),
             calibration_dir=calib_dir, annotation_dir=ann.found, depth_timestamps=depth_ts,
             strict=strict, depth_sync_ms=depth_sync_ms, svoe_dir=str(svoe_dir or ""), mvpe_dir=str(mvpe_dir or ""),

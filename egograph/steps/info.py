@@ -73,10 +73,11 @@ def enrollment_lookups(rec: Recording, labels: list[str] | None) -> tuple[Lookup
     return svoe, mvpe
 
 
-def summarize(rec: Recording, depth_samples: int = 5) -> dict:
+def summarize(rec: Recording, depth_samples: int = 5, cfg=None) -> dict:
     """Frames, duration, instances, intervals, detections, depth validity, what inputs were found
-    where and what was not (``inputs``) and, for synthetic recordings, the error of the reported
-    poses against ``synth_gt/``."""
+    where and what was not (``inputs``), the fit of every candidate calibration folder when it was
+    scored (``calibration_fit``; ``cfg`` gives the fit test's knobs) and, for synthetic recordings,
+    the error of the reported poses against ``synth_gt/``."""
     out: dict = {
         "sequence": rec.name,
         "frames": len(rec),
@@ -135,6 +136,9 @@ def summarize(rec: Recording, depth_samples: int = 5) -> dict:
                           + [f"{rec.seq_dir}/detections/<set>/"], ", ".join(sets) if sets else
                           "none carried by the recording (pass --detections DIR to lift/track)"))
     out["inputs"] = [lk.to_json() for lk in lookups]
+    fit = getattr(rec, "calibration_fit", None)
+    if fit is not None and cfg is not None:
+        out["calibration_fit"] = fit.to_json(cfg.calib_fit)
     gt = rec.synth_gt_dir
     if gt is not None:
         gt_ts, true_pv, _ = read_pose_json(gt / "pv_pose.json")
@@ -198,8 +202,34 @@ def print_summary(summary: dict, console=None, inputs: bool = True) -> None:
         t.add_row("reported PV pose error", f"translation RMSE {pe['trans_rmse_m'] * 100:.1f} cm (max {pe['trans_max_m'] * 100:.1f}), "
                                             f"rotation RMSE {pe['rot_rmse_deg']:.2f}° (max {pe['rot_max_deg']:.2f})")
     console.print(t)
+    if summary.get("calibration_fit"):
+        print_calibration_fit(summary["calibration_fit"], console)
     if inputs:
         print_inputs(summary.get("inputs", []), console)
+
+
+def print_calibration_fit(fit: dict, console) -> None:
+    """Every candidate calibration folder's fit score, the one used marked (``summary["calibration_fit"]``)."""
+    from rich.markup import escape
+    from rich.table import Table
+
+    if not fit["candidates"]:
+        console.print(f"calibration fit: {escape(fit.get('note') or 'not scored')}")
+        return
+    t = Table(title=f"calibration fit: mean distance of AHAT depth edges to PV edges on {fit['frames']} frames "
+                    "(lower fits better)")
+    for col in ("", "folder", "score px", "spread", "best shift px", "fits"):
+        t.add_column(col, overflow="fold" if col == "folder" else "ellipsis")
+    for c in fit["candidates"]:
+        mark = "used" if c["used"] else ""
+        if c["by_number"] and not fit["explicit"]:
+            mark += (" " if mark else "") + "(by number)"
+        shift = ", ".join(f"{v:.0f}" for v in c["offset_px"])
+        t.add_row(mark, escape(c["folder"]), f"{c['score_px']:.2f}", f"{c['spread_px']:.2f}",
+                  f"({shift}) -{c['offset_gain_px']:.2f}", "yes" if c["fits"] else "NO")
+    console.print(t)
+    if fit.get("switched"):
+        console.print("the folder named by the sequence's number fits clearly worse: the best-fitting one is used")
 
 
 def print_inputs(inputs: list[dict], console) -> None:

@@ -8,16 +8,52 @@ from egograph.core.errors import InputError
 from egograph.io.recording import Recording
 
 
+def _open_with_fit(path, cfg, calibration, annotations, sequence, score_calibration: bool) -> Recording:
+    """:meth:`Recording.open` with the calibration folder chosen by :func:`choose_calibration`; the
+    fit of the candidates is kept as ``rec.calibration_fit``."""
+    import warnings
+
+    from egograph.io.calibration import calibration_choice
+    from egograph.io.recording import find_sequence_dir
+    from egograph.steps.calibration import choose_calibration
+
+    io = cfg.io
+
+    def read(calib):
+        return Recording.open(path, sequence=sequence, calibration=calib, annotations=annotations,
+                              invalid_poses=io.invalid_poses, depth_factor=io.depth_factor or None, strict=io.strict,
+                              depth_sync_ms=io.depth_sync_ms, svoe_dir=io.svoe_dir or None, mvpe_dir=io.mvpe_dir or None)
+
+    first = calibration
+    if calibration is None and cfg.calib_fit.select:
+        choice = calibration_choice(find_sequence_dir(path, sequence))
+        if choice.by_number is None and len(choice.candidates) > 1:
+            first = choice.candidates[0]   # the fit decides among them below
+    rec = read(first)
+    used, fit = choose_calibration(rec, cfg, explicit=calibration is not None, strict=io.strict,
+                                   always_score=score_calibration)
+    if used != rec.calibration_dir:
+        with warnings.catch_warnings():   # what the first reading said about the recording holds
+            warnings.simplefilter("ignore")
+            rec = read(used)
+    for lk in rec.lookups:
+        if lk.what == "calibration" and fit.scores:
+            s = fit.scores.get(used)
+            lk.note = (f"fit {s.score:.2f} px (spread {s.spread:.2f}) on {fit.frames} frames" if s is not None else "")
+            lk.note += "; chosen by fit over the folder named by number" if fit.switched else ""
+            lk.problem = s is not None and not s.fits(cfg.calib_fit)
+    rec.calibration_fit = fit
+    return rec
+
+
 def open_recording(path: str | Path, cfg, *, calibration: str | Path | None = None,
                    annotations: str | Path | None = None, sequence: str | None = None,
-                   poses: str | Path | None = None) -> Recording:
+                   poses: str | Path | None = None, score_calibration: bool = False) -> Recording:
     """The recording at ``path`` read with ``cfg.io`` (pose policy, depth sync tolerance, strictness,
-    enrollment folders); ``poses``: a folder written by ``egograph refine`` whose poses replace the
-    recording's."""
-    io = cfg.io
-    rec = Recording.open(path, sequence=sequence, calibration=calibration, annotations=annotations,
-                         invalid_poses=io.invalid_poses, depth_factor=io.depth_factor or None, strict=io.strict,
-                         depth_sync_ms=io.depth_sync_ms, svoe_dir=io.svoe_dir or None, mvpe_dir=io.mvpe_dir or None)
+    enrollment folders) and the calibration folder that fits it (:mod:`egograph.steps.calibration`;
+    ``score_calibration``: score the candidates even when there is one); ``poses``: a folder written
+    by ``egograph refine`` whose poses replace the recording's."""
+    rec = _open_with_fit(path, cfg, calibration, annotations, sequence, score_calibration)
     if poses is not None:
         from egograph.poses.refine import apply_poses
 

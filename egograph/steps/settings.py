@@ -13,7 +13,7 @@ from dataclasses import dataclass
 
 from egograph.core.config import Checked, section
 from egograph.frontend.config import AdaptConfig, FrontendConfig
-from egograph.geometry.config import LiftConfig
+from egograph.geometry.config import CalibFitConfig, LiftConfig
 from egograph.io.config import IoConfig
 from egograph.poses.config import RefineConfig
 from egograph.track.config import BaselineConfig, GraphConfig, JointConfig, RegtConfig
@@ -23,6 +23,8 @@ from egograph.track.config import BaselineConfig, GraphConfig, JointConfig, Regt
 class EgographConfig(Checked):
     io: IoConfig = section(IoConfig, "reading recordings")
     lift: LiftConfig = section(LiftConfig, "2D detections -> 3D observations")
+    calib_fit: CalibFitConfig = section(CalibFitConfig, "how well a calibration registers AHAT depth with the PV "
+                                                        "frames; choosing the calibration folder with it")
     track: BaselineConfig = section(BaselineConfig, "the paper's baseline trackers (memory, kf)")
     graph: GraphConfig = section(GraphConfig, "the factor-graph tracker (graph, graph-causal), regt and smooth")
     regt: RegtConfig = section(RegtConfig, "ground-truth re-estimation audit")
