@@ -18,6 +18,10 @@ def open_recording(path: str | Path, cfg, *, calibration: str | Path | None = No
     rec = Recording.open(path, sequence=sequence, calibration=calibration, annotations=annotations,
                          invalid_poses=io.invalid_poses, depth_factor=io.depth_factor or None, strict=io.strict,
                          depth_sync_ms=io.depth_sync_ms, svoe_dir=io.svoe_dir or None, mvpe_dir=io.mvpe_dir or None)
+    if not io.depth_factor:  # the unit read from the values: checked on the mesh when they say 1 mm
+        from egograph.geometry.depth_unit import settle_depth_unit
+
+        settle_depth_unit(rec, stated=False)
     if poses is not None:
         from egograph.poses.refine import apply_poses
 
