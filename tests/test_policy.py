@@ -422,6 +422,11 @@ def test_a_ctrl_c_swallowed_by_a_library_import_stops_the_run(case, monkeypatch)
             raise ImportError("initialization failed") from None
 
     monkeypatch.setattr(Recording, "mesh_scene", swallowed)
-    got, err, changed = case.run(["track", "recA", "--tracker", "memory", "--quiet", "--out", "resA",
-                                  "--overwrite"])
+    # A background job of a shell without job control inherits SIGINT ignored: as from a terminal here.
+    before = signal.signal(signal.SIGINT, signal.default_int_handler)
+    try:
+        got, err, changed = case.run(["track", "recA", "--tracker", "memory", "--quiet", "--out", "resA",
+                                      "--overwrite"])
+    finally:
+        signal.signal(signal.SIGINT, before)
     assert got == 130 and changed == [], (err, changed)

@@ -369,7 +369,10 @@ def _run(egograph: Path, d: Path, case: Case):
         return p.returncode, p.stderr, time.monotonic() - t0
     if case.send:
         sig, when = case.send
-        p = subprocess.Popen(argv, cwd=d, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True, env=env)
+        # A shell without job control starts background commands with SIGINT ignored, and the
+        # ignore is inherited: give the run the default disposition, as a terminal would.
+        p = subprocess.Popen(argv, cwd=d, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True, env=env,
+                             preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL))
         if when == "lock":  # the run holds its output's lock: it is past its imports, at work
             while p.poll() is None and not any(d.glob(".*.lock")):
                 time.sleep(0.005)
