@@ -143,11 +143,23 @@ def test_an_unexpected_error_is_one_line_and_a_log_file(tiny_rec, tmp_path, caps
 
     monkeypatch.setattr(info, "summarize", broken)
     monkeypatch.setattr("tempfile.tempdir", str(tmp_path))
+    monkeypatch.setenv("XDG_STATE_HOME", str(tmp_path / "state"))
+    # A link planted at the old fixed name in the shared temporary folder is never followed.
+    victim = tmp_path / "victim.txt"
+    victim.write_text("keep me\n")
+    (tmp_path / "egograph-error-info.log").symlink_to(victim)
     assert main(["info", str(tiny_rec)]) == 1
     err = capsys.readouterr().err
     assert err.count("\n") == 1 and "internal error: ValueError: operands could not be broadcast" in err
-    log = tmp_path / "egograph-error-info.log"
-    assert str(log) in err and "Traceback" in log.read_text() and "broken" in log.read_text()
+    folder = tmp_path / "state" / "egograph"
+    logs = list(folder.glob("egograph-error-info-*.log"))
+    assert len(logs) == 1 and str(logs[0]) in err
+    assert "Traceback" in logs[0].read_text() and "broken" in logs[0].read_text()
+    assert (folder.stat().st_mode & 0o777, logs[0].stat().st_mode & 0o777) == (0o700, 0o600)
+    assert victim.read_text() == "keep me\n"
+    # A second crash gets a file of its own (exclusive creation, random name).
+    assert main(["info", str(tiny_rec)]) == 1
+    assert len(list(folder.glob("egograph-error-info-*.log"))) == 2
 
 
 def test_min_confidence_is_a_probability_and_sets_both_operating_points(tmp_path, capsys):

@@ -96,7 +96,8 @@ def test_contact_sheet_projects_truth_and_predictions_around_the_break():
 
 def test_missing_results_folder_exits_2_naming_it(tmp_path, capsys):
     out = tmp_path / "plots"
-    assert main(["plot", str(tmp_path), str(tmp_path / "no_such_results"), "--out", str(out)]) == 2
+    (tmp_path / "rec").mkdir()  # beside the output: an output inside an input is refused first
+    assert main(["plot", str(tmp_path / "rec"), str(tmp_path / "no_such_results"), "--out", str(out)]) == 2
     assert "no_such_results" in capsys.readouterr().err
     assert not out.exists()
 

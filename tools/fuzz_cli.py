@@ -4,6 +4,7 @@ good output; then killed runs and two runs racing for one output. Prints a table
 
     .venv/bin/python tools/fuzz_cli.py                          # ~130 input cases, 20 kills, 10 races
     .venv/bin/python tools/fuzz_cli.py --kills 0 --races 0 --jobs 2 --work /tmp/fuzz --keep
+    .venv/bin/python tools/fuzz_cli.py --only none --kills 0 --races 0 --classes all   # the classes only
 
 Outcome of an input case (in this order):
 
@@ -523,6 +524,9 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--races", type=int, default=10, help="race trials (default 10)")
     ap.add_argument("--only", help="run only the input cases whose name contains this")
     ap.add_argument("--verbose", action="store_true", help="print every case's outcome")
+    ap.add_argument("--classes", choices=("first", "second", "all", "none"), default="all",
+                    help="also the fault classes of tools/fault_classes.py (output policy, another recording, "
+                         "input checks, machine faults, signals; 'second': the extra set; default all)")
     args = ap.parse_args(argv)
     work = args.work or Path(tempfile.mkdtemp(prefix="egograph-fuzz-"))
     if work.exists() and any(work.iterdir()):
@@ -551,6 +555,12 @@ def main(argv: list[str] | None = None) -> int:
     if args.races:
         r = race_trials(s, args.races)
         print("race trials (two track runs on one --out): " + ", ".join(f"{n} {v}" for n, v in r.items()))
+    if args.classes != "none":
+        sys.path.insert(0, str(Path(__file__).resolve().parent))
+        from fault_classes import run_all
+
+        print("\nfault classes (tools/fault_classes.py):")
+        run_all(args.egograph, work / "classes", args.classes, args.jobs, args.verbose)
     print(f"\ntotal {time.monotonic() - t0:.0f} s; work folder {work}" + ("" if args.keep else " (removed)"))
     if not args.keep:
         shutil.rmtree(work, ignore_errors=True)

@@ -17,7 +17,15 @@ SYNTH_CONFIG = synth_config("svoe")
 def _console():
     from rich.console import Console
 
-    return Console()
+    class _Console(Console):
+        def on_broken_pipe(self) -> None:
+            """The reader went away (``| head``): the CLI stops quietly (rich would exit 1)."""
+            import errno
+
+            self.quiet = True
+            raise BrokenPipeError(errno.EPIPE, "Broken pipe")
+
+    return _Console()
 
 
 def _add_config_args(p: argparse.ArgumentParser, default: Path | None) -> None:
@@ -126,3 +134,53 @@ def why_no_intervals(obs, rec, graph_cfg) -> str:
                 f"({graph_cfg.score_threshold})")
     return (f"a stand needs at least {need} consistent detections (graph.min_observations); the best-seen instance "
             f"has {int(per.max())} usable ones over {dur:.1f} s of recording")
+
+
+# ------------------------------------------------------------------ the output policy
+
+OUTPUT_OPTIONS = {"json": "file", "markdown": "file", "csv": "file", "plot": "file", "intervals": "file",
+                  "lifted_dir": "dir", "poses_out": "dir"}
+"""Output options besides ``--out`` and the kind of path each names."""
+
+OUT_STEPS = {"synth": ("synth",), "track": ("track",), "smooth": ("smooth",), "regt": ("regt",),
+             "compare": ("compare",), "refine": ("refine",), "plot": ("plot",), "export": ("export",),
+             "run": None}
+"""The run-record steps a previous ``--out`` folder of a command may hold (others: any egograph step)."""
+
+INPUT_OPTIONS = ("rec", "results", "observations", "detections", "poses", "guide", "adapt", "adapt_detections",
+                 "calibration", "annotations", "config", "dataset", "encoder", "reference")
+"""Arguments that name inputs: no output may be one of them, lie inside one or hold one."""
+
+
+def command_outputs(args) -> list:
+    """The outputs a parsed command line names, as :class:`egograph.io.outpolicy.Output`."""
+    from egograph.io.outpolicy import Output
+
+    outs = []
+    out = getattr(args, "out", None)
+    if out is not None and args.command != "demo":
+        kind = "file" if args.command == "lift" else "dir"
+        outs.append(Output(Path(out), "--out" if args.command != "synth" else "OUT", kind,
+                           OUT_STEPS.get(args.command, ())))
+    for name, kind in OUTPUT_OPTIONS.items():
+        value = getattr(args, name, None)
+        if isinstance(value, (str, Path)):
+            outs.append(Output(Path(value), "--" + name.replace("_", "-"), kind, None if kind == "dir" else ()))
+    return outs
+
+
+def command_inputs(args) -> list[Path]:
+    ins = []
+    for name in INPUT_OPTIONS:
+        value = getattr(args, name, None)
+        for v in value if isinstance(value, list) else [value]:
+            if isinstance(v, (str, Path)) and str(v):
+                ins.append(Path(v))
+    return ins
+
+
+def check_output_policy(args) -> None:
+    """Refuse (exit 2, one line) an output the policy of :mod:`egograph.io.outpolicy` forbids."""
+    from egograph.io.outpolicy import check_outputs
+
+    check_outputs(command_outputs(args), command_inputs(args))

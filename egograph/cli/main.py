@@ -26,7 +26,9 @@ Bad input ends with one line naming the file (and line, or the config key) and e
 from __future__ import annotations
 
 import argparse
+import errno
 import json
+import os
 import sys
 import textwrap
 import time
@@ -240,15 +242,18 @@ def cmd_track(args) -> int:
     if args.lag is not None:
         if args.tracker != "graph-causal":
             raise ConfigError(f"--lag needs --tracker graph-causal, not {args.tracker}")
-        if not args.lag >= 0:
-            raise ConfigError(f"--lag {args.lag}: seconds, >= 0")
+        if not 0 <= args.lag < float("inf"):
+            raise ConfigError(f"--lag {args.lag}: seconds, >= 0 and finite")
         cfg.graph.lag_s = float(args.lag)
     _min_confidence(args, cfg)
     rec = _open(args, cfg)
     con = _console()
     t0 = time.perf_counter()
     if args.observations:
+        from egograph.steps.outputs import check_belongs
+
         obs = Observations.load(args.observations)
+        check_belongs(rec, (obs.provenance or {}).get("recording"), args.observations, "observations")
     else:
         from egograph.steps.lift import lift
 
@@ -763,9 +768,72 @@ def _config_only(argv: list[str]) -> int | None:
 
 
 def main(argv: list[str] | None = None) -> int:
+    from egograph.core import signals
+
     argv = list(sys.argv[1:] if argv is None else argv)
     warnings.simplefilter("default")
     warnings.formatwarning = _one_line_warning
+    previous = signals.install()
+    try:
+        return _flush_stdout(_main(argv))
+    except BrokenPipeError:
+        return _broken_pipe()
+    except OSError as exc:
+        if exc.errno in _STDOUT_ERRNOS and getattr(exc, "egograph_stdout", False):
+            print(f"egograph: error: standard output: {exc.strerror}", file=sys.stderr)
+            return 2
+        raise
+    finally:
+        signals.restore(previous)
+
+
+_STDOUT_ERRNOS = {errno.ENOSPC, errno.EBADF, errno.EIO, errno.EDQUOT, errno.EFBIG}
+
+
+def _flush_stdout(code: int) -> int:
+    """Flush standard output now, so a full or closed one is an error of this run, not a message
+    at interpreter exit."""
+    try:
+        if sys.stdout is not None:
+            sys.stdout.flush()
+    except BrokenPipeError:
+        raise
+    except OSError as exc:
+        exc.egograph_stdout = True
+        raise
+    return code
+
+
+def _broken_pipe() -> int:
+    """The reader of standard output went away (``| head``): stop quietly, as command-line tools do
+    (exit 141: a process ended by SIGPIPE)."""
+    try:
+        devnull = os.open(os.devnull, os.O_WRONLY)
+        os.dup2(devnull, sys.stdout.fileno())
+    except (OSError, AttributeError, ValueError):
+        pass
+    return 128 + 13
+
+
+def _stdout_usable() -> str | None:
+    """Why standard output cannot take the run's summary (closed), or None."""
+    if sys.stdout is None:  # Python's stdout when descriptor 1 was closed at start
+        return "closed"
+    try:
+        fd = sys.stdout.fileno()
+    except Exception:  # a replaced stdout without a descriptor (a capture): usable
+        return None
+    try:
+        os.fstat(fd)
+    except OSError:
+        return "closed"
+    return None
+
+
+def _main(argv: list[str]) -> int:
+    from egograph.core import signals
+
+    args = None
     try:
         shown = _config_only(argv)
         if shown is not None:
@@ -774,6 +842,14 @@ def main(argv: list[str] | None = None) -> int:
             args = build_parser().parse_args(argv)
         except SystemExit as exc:  # usage errors (argparse printed them), --help, --version
             return int(exc.code or 0) if not isinstance(exc.code, str) else 2
+        why = _stdout_usable()
+        if why is not None:
+            print(f"egograph: error: standard output is {why}; the run's summary would be lost "
+                  "(redirect it to a file or /dev/null)", file=sys.stderr)
+            return 2
+        from egograph.cli.common import check_output_policy
+
+        check_output_policy(args)
         out = getattr(args, "out", None)
         if out is None:
             return int(args.func(args) or 0)
@@ -782,15 +858,50 @@ def main(argv: list[str] | None = None) -> int:
         with output_lock(out):  # a second run on the same --out fails at its start, not after its work
             return int(args.func(args) or 0)
     except EgographError as exc:
-        print(f"egograph: error: {exc}", file=sys.stderr)
+        print(f"egograph: error: {_one_line(str(exc))}", file=sys.stderr)
         return 2
     except KeyboardInterrupt:
+        print("egograph: interrupted (SIGINT); nothing was replaced", file=sys.stderr)
         return 130
-    except Exception as exc:  # a bug, not bad input: one line here, the traceback in a log file
-        log = _write_crash_log(argv, locals().get("args"))
-        print(f"egograph: internal error: {type(exc).__name__}: {' '.join(str(exc).split())[:300]} "
-              f"(full traceback in {log}; please report it)", file=sys.stderr)
-        return 1
+    except signals.Stopped as exc:
+        print(f"egograph: stopped by {exc}; nothing was replaced", file=sys.stderr)
+        return signals.exit_code(exc.signum)
+    except BrokenPipeError:
+        raise
+    except OSError as exc:
+        from egograph.io.outpolicy import MACHINE_ERRNOS, machine_fault_text
+
+        if exc.errno not in MACHINE_ERRNOS:
+            return _internal_error(argv, args)
+        if _is_stdout_error(exc):
+            exc.egograph_stdout = True
+            raise
+        print(f"egograph: error: {_one_line(machine_fault_text(exc))}", file=sys.stderr)
+        return 2
+    except MemoryError:
+        print("egograph: error: out of memory", file=sys.stderr)
+        return 2
+    except Exception:  # a bug, not bad input: one line here, the traceback in a log file
+        return _internal_error(argv, args)
+
+
+def _is_stdout_error(exc: OSError) -> bool:
+    """An OSError of writing standard output has no file name (rich and print raise it bare)."""
+    return exc.filename is None and exc.errno in _STDOUT_ERRNOS
+
+
+def _one_line(text: str, limit: int = 2000) -> str:
+    text = " ".join(text.split())
+    return text if len(text) <= limit else text[: limit - 3] + "..."
+
+
+def _internal_error(argv: list[str], args) -> int:
+    exc = sys.exc_info()[1]
+    log = _write_crash_log(argv, args)
+    where = f"full traceback in {log}" if log is not None else "no log could be written"
+    print(f"egograph: internal error: {type(exc).__name__}: {' '.join(str(exc).split())[:300]} "
+          f"({where}; please report it)", file=sys.stderr)
+    return 1
 
 
 def _one_line_warning(message, category, filename, lineno, line=None) -> str:
@@ -798,26 +909,48 @@ def _one_line_warning(message, category, filename, lineno, line=None) -> str:
     return f"egograph: warning: {message}\n"
 
 
-def _write_crash_log(argv: list[str], args) -> Path:
-    """The traceback of an unexpected exception, written beside the run's output (``--out``'s
-    folder when it exists) or in the temporary folder; returns its path."""
+def _write_crash_log(argv: list[str], args) -> Path | None:
+    """The traceback of an unexpected exception in a new file of its own: beside the run's output
+    (``--out``'s folder when it exists) or in a private folder (``$XDG_STATE_HOME/egograph`` or
+    ``~/.local/state/egograph``, mode 0700, refused when it is a link or another user's). The file
+    is created exclusively (``O_EXCL``), never following a link, mode 0600, under a random name: a
+    link planted in a shared folder cannot redirect it. None when no place could take it."""
     import tempfile
     import traceback
 
     from egograph.steps.outputs import command_line
 
     out = getattr(args, "out", None) if args is not None else None
-    folder = Path(out).parent if out else Path(tempfile.gettempdir())
-    if not folder.is_dir():
-        folder = Path(tempfile.gettempdir())
-    log = folder / f"egograph-error-{getattr(args, 'command', None) or 'run'}.log"
     text = f"egograph {__version__}\n{command_line(['egograph', *argv])}\n\n{traceback.format_exc()}"
+    prefix = f"egograph-error-{getattr(args, 'command', None) or 'run'}-"
+    for folder in ([Path(out).absolute().parent] if out else []) + [_private_folder()]:
+        if folder is None or not folder.is_dir() or folder.is_symlink():
+            continue
+        try:
+            fd, name = tempfile.mkstemp(prefix=prefix, suffix=".log", dir=folder)  # O_EXCL | O_NOFOLLOW, 0600
+            with os.fdopen(fd, "w") as fh:
+                fh.write(text)
+            return Path(name)
+        except OSError:
+            continue
+    return None
+
+
+def _private_folder() -> Path | None:
+    """``$XDG_STATE_HOME/egograph`` (default ``~/.local/state/egograph``), made 0700; None when it
+    is a link, not ours, or open to others."""
+    import stat
+
+    base = os.environ.get("XDG_STATE_HOME") or os.path.join(os.path.expanduser("~"), ".local", "state")
+    folder = Path(base) / "egograph"
     try:
-        log.write_text(text)
+        folder.mkdir(mode=0o700, parents=True, exist_ok=True)
+        st = os.lstat(folder)
     except OSError:
-        log = Path(tempfile.gettempdir()) / log.name
-        log.write_text(text)
-    return log
+        return None
+    if not stat.S_ISDIR(st.st_mode) or st.st_uid != os.getuid() or st.st_mode & 0o077:
+        return None
+    return folder
 
 
 if __name__ == "__main__":

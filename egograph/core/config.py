@@ -160,9 +160,9 @@ class KnobError(ConfigError):
         text = self.template.format(*self.keys)
         if show_values:
             if len(self.keys) == 1:
-                text += f" (got {self.values[0]!r})"
+                text += f" (got {excerpt(self.values[0])})"
             else:
-                text += " (got " + ", ".join(f"{k}={v!r}" for k, v in zip(self.keys, self.values)) + ")"
+                text += " (got " + ", ".join(f"{k}={excerpt(v, 80)}" for k, v in zip(self.keys, self.values)) + ")"
         return text
 
     def under(self, prefix: str) -> KnobError:
@@ -213,6 +213,66 @@ class Checked:
 # --------------------------------------------------------------------------- building
 
 
+MAX_INT = 2**31 - 1
+"""The largest integer a knob takes (a 32-bit C int: the libraries behind the knobs take them)."""
+
+MAX_YAML_NODES = 100_000
+"""The most values a config file or ``--set`` value may expand to through YAML aliases (the
+packaged configs have about 1,000): a few hundred bytes of nested anchors otherwise expand to
+billions (the "billion laughs")."""
+
+EXCERPT = 200
+"""The longest excerpt of a value an error line quotes, in characters."""
+
+
+def _cut(text: str, limit: int = EXCERPT) -> str:
+    """``text`` on one line, at most ``limit`` characters."""
+    text = " ".join(str(text).split())
+    return text if len(text) <= limit else text[: limit - 3] + "..."
+
+
+def excerpt(value: Any, limit: int = EXCERPT) -> str:
+    """``repr(value)`` cut to ``limit`` characters on one line (without building a huge repr)."""
+    import reprlib
+
+    r = reprlib.Repr()
+    r.maxlist = r.maxtuple = r.maxdict = r.maxset = 12
+    r.maxstring = r.maxother = limit
+    r.maxlevel = 3
+    text = " ".join(r.repr(value).split())
+    return text if len(text) <= limit else text[: limit - 3] + "..."
+
+
+def check_yaml_size(text: str, where: str) -> None:
+    """ConfigError when ``text`` expands to more than :data:`MAX_YAML_NODES` values through
+    aliases; measured on the composed node graph (aliases shared, never expanded)."""
+    if "*" not in text:
+        return
+    try:
+        node = yaml.compose(text, Loader=yaml.SafeLoader)
+    except yaml.YAMLError:
+        return  # the loader says why, naming the line
+    sizes: dict[int, int] = {}
+
+    def size(n) -> int:
+        got = sizes.get(id(n))
+        if got is not None:
+            return got
+        sizes[id(n)] = 1  # a recursive alias counts once
+        total = 1
+        if isinstance(n, yaml.SequenceNode):
+            total += sum(size(c) for c in n.value)
+        elif isinstance(n, yaml.MappingNode):
+            total += sum(size(k) + size(v) for k, v in n.value)
+        total = min(total, MAX_YAML_NODES + 1)
+        sizes[id(n)] = total
+        return total
+
+    if node is not None and size(node) > MAX_YAML_NODES:
+        raise ConfigError(f"{where}: YAML aliases expand to more than {MAX_YAML_NODES:,} values (nested "
+                          "anchors?); refused")
+
+
 def _coerce(value: Any, hint: Any, where: str, ctx: _Context) -> Any:
     origin = typing.get_origin(hint)
     if dataclasses.is_dataclass(hint):
@@ -244,12 +304,17 @@ def _coerce(value: Any, hint: Any, where: str, ctx: _Context) -> Any:
     if hint is int:
         if isinstance(value, bool) or not isinstance(value, int):
             if isinstance(value, float) and value.is_integer():
-                return int(value)
-            raise ctx.error(where, f"{where} must be an integer", value)
+                value = int(value)
+            else:
+                raise ctx.error(where, f"{where} must be an integer", value)
+        if abs(value) > MAX_INT:  # the C libraries (GTSAM, Open3D, numpy indices) take 32-bit ints
+            raise ctx.error(where, f"{where} must be an integer of at most {MAX_INT} in size", value)
         return value
     if hint is float:
         if isinstance(value, bool) or not isinstance(value, (int, float)):
             raise ctx.error(where, f"{where} must be a number", value)
+        if math.isinf(value):  # NaN: the knob's rule says "not NaN"
+            raise ctx.error(where, f"{where} must be a finite number", value)
         return float(value)
     if hint is str:
         if not isinstance(value, str):
@@ -297,7 +362,7 @@ class _Context:
     def error(self, key: str, message: str, value: Any = dataclasses.MISSING) -> ConfigError:
         where = self.origin(key)
         if value is not dataclasses.MISSING and not (where or "").startswith("--set"):
-            message += f" (got {value!r})"
+            message += f" (got {excerpt(value)})"
         return ConfigError(f"{where}: {message}" if where else message)
 
     def unknown(self, key: str, where: str, names: Sequence[str]) -> str:
@@ -358,12 +423,13 @@ def _parse_override(item: str) -> tuple[list[str], Any]:
     key, sep, raw = item.partition("=")
     parts = key.strip().split(".")
     if not sep or not all(p.strip() for p in parts):
-        raise ConfigError(f"--set {item}: expected dotted.key=value")
+        raise ConfigError(f"--set {_cut(item)}: expected dotted.key=value")
+    check_yaml_size(raw, f"--set {key.strip()}")
     try:
         value = yaml.safe_load(raw) if raw.strip() else ""
     except yaml.YAMLError as exc:
         reason = " ".join(str(exc).split())
-        raise ConfigError(f"--set {item}: value is not valid YAML ({reason})") from None
+        raise ConfigError(f"--set {_cut(item)}: value is not valid YAML ({_cut(reason)})") from None
     return [p.strip() for p in parts], value
 
 
@@ -380,10 +446,10 @@ def _parse_overrides(overrides: Iterable[str], origins: dict[str, str]) -> dict:
         for i, p in enumerate(parts[:-1]):
             node = node.setdefault(p, {})
             if not isinstance(node, dict):
-                raise ConfigError(f"--set {item}: {'.'.join(parts[:i + 1])} is set both as a value and a section")
+                raise ConfigError(f"--set {_cut(item)}: {'.'.join(parts[:i + 1])} is set both as a value and a section")
         node[parts[-1]] = value
         for key in _dotted_keys(value, ".".join(parts)):
-            origins[key] = f"--set {item}"
+            origins[key] = f"--set {_cut(item)}"
     return out
 
 
@@ -417,6 +483,7 @@ def _read_yaml(path: Path, origins: dict[str, str]) -> dict:
         text = path.read_text()
     except OSError as exc:
         raise ConfigError(f"{path}: config file unreadable ({exc.strerror})") from None
+    check_yaml_size(text, str(path))
     try:
         loaded = yaml.safe_load(text)
         node = yaml.compose(text)

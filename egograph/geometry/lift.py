@@ -366,7 +366,10 @@ def _nothing_lifted(rec, report: LiftReport) -> InputError:
         ann = getattr(rec, "annotation_dir", None)
         return InputError(Path(ann) / "labels.csv" if ann else source, f"every instance id is beyond the labels; {what}")
     if top in ("no_depth_frame", "no_depth_pixels", "no_dominant_cluster"):
-        return InputError(seq / "depth_ahat", f"no usable depth in the detections' boxes; {what}")
+        return InputError(seq / "depth_ahat", f"no usable depth in the detections' boxes (if the depth images hold "
+                                              "ranges there, the likely cause is AHAT extrinsics in another axis "
+                                              "convention: the boxes then map away from the depth camera's view); "
+                                              f"{what}")
     return InputError(source, what)
 
 

@@ -36,6 +36,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from egograph.core import signals
 from egograph.geometry.ahat_model import pixel_lookup
 from egograph.geometry.chains import FrameChains
 from egograph.geometry.config import MIN_RANGE_M, LiftConfig
@@ -132,6 +133,9 @@ def _mesh_raycaster(rec, notes: list[str]):
             notes.append("no mesh; alias taken as read (k = 0)")
         return scene
     except (ImportError, ValueError, OSError, RuntimeError) as exc:
+        # Ctrl-C while Open3D's module initialises comes out as ImportError("initialization
+        # failed"): stop, do not carry on without the mesh.
+        signals.reraise_if_interrupted()
         notes.append(f"mesh unusable ({exc}); alias taken as read (k = 0)")
         return None
 

@@ -35,6 +35,7 @@ import math
 import os
 import re
 import shutil
+import signal
 import sys
 import tempfile
 import threading
@@ -43,6 +44,7 @@ import warnings
 from pathlib import Path
 from typing import Iterator
 
+from egograph.core import signals
 from egograph.core.errors import ConfigError, InputError
 
 try:
@@ -324,6 +326,27 @@ def _tmp_prefix(path: Path) -> str:
     return f".{path.name}.{os.getpid()}."
 
 
+def _name_the_output(exc: BaseException, path: Path) -> None:
+    """An OSError without a file name (a write that filled the disk) names the output it was for."""
+    if isinstance(exc, OSError) and exc.filename is None and exc.errno is not None:
+        exc.filename = str(path)
+
+
+@contextlib.contextmanager
+def _signals_held() -> Iterator[None]:
+    """Hold SIGINT, SIGTERM and SIGHUP back for the ``with`` block (main thread, POSIX); one that
+    arrives meanwhile is delivered when it ends."""
+    held = [getattr(signal, n) for n in ("SIGINT", "SIGTERM", "SIGHUP") if hasattr(signal, n)]
+    if not hasattr(signal, "pthread_sigmask") or threading.current_thread() is not threading.main_thread():
+        yield
+        return
+    old = signal.pthread_sigmask(signal.SIG_BLOCK, held)
+    try:
+        yield
+    finally:
+        signal.pthread_sigmask(signal.SIG_SETMASK, old)
+
+
 # ------------------------------------------------------------------ files
 
 
@@ -337,19 +360,25 @@ def atomic_path(path: str | Path, wait: float | None = None) -> Iterator[Path]:
     path.parent.mkdir(parents=True, exist_ok=True)
     with output_lock(path, wait):
         _clean_and_say(path, folder=False)
-        fd, tmp = tempfile.mkstemp(prefix=_tmp_prefix(path), suffix=".tmp", dir=path.parent)
-        os.close(fd)
-        tmp_path = Path(tmp)
-        _in_use.add(os.path.abspath(tmp))
+        tmp_path = None
         try:
+            with _signals_held():  # a signal between making the temporary and naming it here would leak it
+                fd, tmp = tempfile.mkstemp(prefix=_tmp_prefix(path), suffix=".tmp", dir=path.parent)
+                os.close(fd)
+                tmp_path = Path(tmp)
+                _in_use.add(os.path.abspath(tmp))
             yield tmp_path
             os.chmod(tmp_path, FILE_MODE & ~process_umask())
+            signals.reraise_if_interrupted()  # a signal a library swallowed: never commit that run
             os.replace(tmp_path, path)
-        except BaseException:
-            tmp_path.unlink(missing_ok=True)
+        except BaseException as exc:
+            if tmp_path is not None:
+                tmp_path.unlink(missing_ok=True)
+            _name_the_output(exc, path)
             raise
         finally:
-            _in_use.discard(os.path.abspath(tmp))
+            if tmp_path is not None:
+                _in_use.discard(os.path.abspath(tmp_path))
 
 
 def atomic_write_text(path: str | Path, text: str) -> None:
@@ -377,17 +406,23 @@ def atomic_dir(path: str | Path, wait: float | None = None) -> Iterator[Path]:
     path.parent.mkdir(parents=True, exist_ok=True)
     with output_lock(path, wait):
         _clean_and_say(path, folder=True)
-        tmp = Path(tempfile.mkdtemp(prefix=_tmp_prefix(path), suffix=".tmp", dir=path.parent))
-        _in_use.add(os.path.abspath(tmp))
+        tmp = None
         try:
+            with _signals_held():  # a signal between making the temporary and naming it here would leak it
+                tmp = Path(tempfile.mkdtemp(prefix=_tmp_prefix(path), suffix=".tmp", dir=path.parent))
+                _in_use.add(os.path.abspath(tmp))
             os.chmod(tmp, DIR_MODE & ~process_umask())
             yield tmp
+            signals.reraise_if_interrupted()  # a signal a library swallowed: never commit that run
             _commit_dir(tmp, path)
-        except BaseException:
-            shutil.rmtree(tmp, ignore_errors=True)
+        except BaseException as exc:
+            if tmp is not None:
+                shutil.rmtree(tmp, ignore_errors=True)
+            _name_the_output(exc, path)
             raise
         finally:
-            _in_use.discard(os.path.abspath(tmp))
+            if tmp is not None:
+                _in_use.discard(os.path.abspath(tmp))
 
 
 def _commit_dir(new: Path, path: Path) -> None:

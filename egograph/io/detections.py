@@ -234,8 +234,33 @@ def read_detection_dir(
     if scan.ignored:
         warnings.warn(f"{path}: {len(scan.ignored)} of {scan.n_files} detection files skipped: "
                       f"{scan.ignored_text()}", stacklevel=2)
-    return DetectionFrames({ts: read_one(scan.matched[ts]) if ts in scan.matched else [] for ts in stamps},
-                           scan=scan)
+    frames = {ts: read_one(scan.matched[ts]) if ts in scan.matched else [] for ts in stamps}
+    _collapse_repeats(frames, scan)
+    return DetectionFrames(frames, scan=scan)
+
+
+def _collapse_repeats(frames: dict[int, list[Detection]], scan: FrameDirScan) -> None:
+    """Identical lines repeated in one frame (a writer that appended twice) are one detection, not
+    independent evidence: keep the first of each, with one warning counting them."""
+    dropped, where = 0, None
+    for ts, dets in frames.items():
+        if len(dets) < 2:
+            continue
+        seen: set = set()
+        kept = []
+        for d in dets:
+            key = (d.instance, d.box, d.score)
+            if key in seen:
+                continue
+            seen.add(key)
+            kept.append(d)
+        if len(kept) < len(dets):
+            dropped += len(dets) - len(kept)
+            where = where or scan.matched.get(ts)
+            frames[ts] = kept
+    if dropped:
+        warnings.warn(f"{scan.folder}: {dropped} repeated identical detection line(s) collapsed "
+                      f"(e.g. in {where.name if where else '?'}); each counts once", stacklevel=3)
 
 
 def check_detection_scan(scan: FrameDirScan, timestamps: Sequence[int]) -> None:

@@ -54,6 +54,23 @@ from egograph.io.calibration import (
 from egograph.io.poses import interpolate_poses, read_pose_json
 
 
+MIN_FRAME_STEP_S = 1e-3
+"""The shortest median step between PV frames a HoloLens recording can have (its PV camera runs
+at 15-60 fps: steps of 16-67 ms); shorter steps are frame numbers or other units, not 100 ns ticks."""
+
+
+def check_hololens_ticks(ts: np.ndarray, path: Path) -> None:
+    """Refuse PV timestamps that cannot be HoloLens 100 ns ticks (frame numbers, milliseconds): a
+    median step between frames under :data:`MIN_FRAME_STEP_S`."""
+    if len(ts) < 10:  # a hand-made test sequence of a few keys proves nothing either way
+        return
+    step = float(np.median(np.diff(ts))) / TICKS_PER_SECOND
+    if step < MIN_FRAME_STEP_S:
+        raise InputError(path, f"timestamps {int(ts[0])}, {int(ts[1])}, ... are {step * 1e3:.4g} ms apart "
+                               "(median): not HoloLens 100 ns ticks (e.g. 133400700000000000, 333333 apart at "
+                               "30 fps); frame numbers or other units?")
+
+
 def mesh_raycasting_scene(mesh):
     """An Open3D ``RaycastingScene`` of a legacy triangle mesh (world frame, metres): ray casts
     (``t_hit`` in metres along unit rays) and closest points; None without a mesh or triangles.
@@ -655,6 +672,7 @@ class Recording:
         policy = "error" if strict else invalid_poses
         lookups = [Lookup("sequence", seq_dir, [str(Path(path))])]
         ts, pv_poses, pv_valid = read_pose_json(seq_dir / "pv_pose.json", policy)
+        check_hololens_ticks(ts, seq_dir / "pv_pose.json")
         lookups.append(Lookup("PV poses", seq_dir / "pv_pose.json", [str(seq_dir / "pv_pose.json")],
                               _invalid_note(pv_valid), problem=not pv_valid.all()))
         calib_dir = find_calibration_dir(seq_dir, calibration)
@@ -735,7 +753,24 @@ class Recording:
         if img is None:
             warnings.warn(f"{p}: unreadable image, treated as missing", stacklevel=2)
             return None
-        return cv2.cvtColor(img, cv2.COLOR_BGR2RGB)
+        return cv2.cvtColor(self._calibrated_size(p, img), cv2.COLOR_BGR2RGB)
+
+    def _calibrated_size(self, p: Path, img: np.ndarray) -> np.ndarray:
+        """A PV frame at the calibration's size: detections are in the calibrated pixel scale. Another
+        size of the same aspect ratio (a downscaled export) is rescaled with one warning per
+        recording; another aspect ratio (a crop, another camera mode) is refused."""
+        rows, cols = (int(v) for v in self.pv.shape)
+        h, w = img.shape[:2]
+        if (h, w) == (rows, cols):
+            return img
+        if abs(w * rows - h * cols) > max(w, h):  # not the same aspect ratio within a pixel
+            raise InputError(p, f"PV frame is {w}x{h} pixels, the PV calibration {cols}x{rows} (another aspect "
+                                "ratio: a crop or another camera mode?); give frames at the calibrated size")
+        if not getattr(self, "_pv_rescale_noted", False):
+            self._pv_rescale_noted = True
+            warnings.warn(f"{p}: PV frames are {w}x{h} pixels, the PV calibration {cols}x{rows}: rescaled to the "
+                          "calibrated size", stacklevel=3)
+        return cv2.resize(img, (cols, rows), interpolation=cv2.INTER_LINEAR if w < cols else cv2.INTER_AREA)
 
     def depth_raw(self, i: int) -> np.ndarray | None:
         """AHAT raw depth of frame i (512, 512) uint16, or None ("no depth") when missing or not a

@@ -58,12 +58,30 @@ def read_text_checked(path: str | Path, what: str) -> str:
         raise InputError(path, f"{what} is not UTF-8 text ({err.reason} at byte {err.start})") from None
 
 
+class _DuplicateKey(Exception):
+    pass
+
+
+def _no_duplicate_keys(pairs: list) -> dict:
+    out = dict(pairs)
+    if len(out) != len(pairs):
+        seen = set()
+        for k, _ in pairs:
+            if k in seen:
+                raise _DuplicateKey(k)
+            seen.add(k)
+    return out
+
+
 def read_json_checked(path: str | Path, what: str):
     """The JSON document of ``path`` (:func:`read_text_checked`), or InputError naming the file (and
     line) when it is not JSON or is nested too deeply to parse."""
     text = read_text_checked(path, what)
     try:
-        return json.loads(text)
+        return json.loads(text, object_pairs_hook=_no_duplicate_keys)
+    except _DuplicateKey as exc:
+        raise InputError(path, f"{what}: key {exc.args[0][:80]!r} given twice (JSON keeps only the last "
+                               "copy; which one is meant?)") from None
     except json.JSONDecodeError as exc:
         raise InputError(path, f"not valid JSON: {exc.msg}", exc.lineno) from None
     except RecursionError:

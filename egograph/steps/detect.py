@@ -193,6 +193,7 @@ def guides_from_results(rec: Recording, path: str | Path) -> dict[int, np.ndarra
     folder = Path(path)
     if not folder.is_dir():
         raise InputError(folder, "3D guidance: not a results folder (egograph track --out DIR)")
+    outputs.check_results_belong(rec, folder)
     stamps = [int(t) for t in rec.timestamps]
     guide = guides_from_predictions(rec, read_results_dir(folder, stamps))
     if not guide:

@@ -27,6 +27,7 @@ from egograph.eval.intervals import PredictedInterval
 from egograph.eval.loader import IGNORED_REASONS, FramePredictions, evaluate_loaded, load_sequence
 from egograph.eval.report import EvalReport
 from egograph.io.recording import Recording
+from egograph.steps import outputs
 from egograph.steps.recording import labels_path, require_annotations
 
 
@@ -82,6 +83,8 @@ def evaluate(rec: Recording, results: str | Path | TrackResult, name: str | None
     """
     ann = require_annotations(rec, "labels.csv, 3d_center_annot.txt")
     centers = ann / "3d_center_annot.txt"
+    if not isinstance(results, TrackResult) and Path(results).is_dir():
+        outputs.check_results_belong(rec, results)
     if isinstance(results, TrackResult):
         result = results
         seq = load_sequence(rec.seq_dir / "pv_pose.json", centers, None, labels_path(rec))

@@ -97,6 +97,9 @@ def export(rec: Recording, results: str | Path, out: str | Path, cfg, *, rrd: bo
         raise InputError(res, f"key_every must be at least 1, got {key_every}")
     rr = require("rerun", "viewer", "egograph export --rrd") if rrd else None
     result = read_result(res, rec)
+    if not any(result.per_frame.values()) and not result.intervals:  # an empty export replaces no good one
+        raise InputError(res, f"no prediction for any PV frame of {rec.seq_dir}: nothing to export ({out} left "
+                              "as it is)")
     record = outputs.run_record("export", cfg, {"recording": outputs.recording_digest(rec),
                                                 "results": outputs.folder_digest(res), "rrd": rrd,
                                                 "key_every": key_every})

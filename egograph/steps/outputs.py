@@ -54,7 +54,57 @@ def recording_digest(rec) -> dict:
     refined poses give a different digest); depth and PV images are not hashed (use overwrite=True
     after editing them in place)."""
     return {"sequence": rec.name, "path": str(rec.seq_dir), "frames": len(rec),
-            "poses": digest(rec.timestamps, rec.pv_poses, rec.pv_valid, rec.depth_poses, rec.depth_valid)}
+            "poses": digest(rec.timestamps, rec.pv_poses, rec.pv_valid, rec.depth_poses, rec.depth_valid),
+            "timestamps": digest(rec.timestamps)}
+
+
+def check_belongs(rec, recorded: dict | None, what: Path | str, kind: str) -> None:
+    """Refuse (InputError) an earlier output ``what`` (results, observations, detections, poses)
+    whose run record says it was made from another recording than ``rec``: another sequence, frame
+    count or PV timestamps (refined poses of the same recording pass). ``recorded`` is the record's
+    ``recording`` entry (:func:`recording_digest`); None (a third-party folder, no record) is
+    accepted with a one-line warning of what could not be checked."""
+    import warnings
+
+    from egograph.core.errors import InputError
+
+    if not isinstance(recorded, dict):
+        # From this line (stacklevel 1), so the "default" filter says it once per run and input.
+        warnings.warn(f"{what}: {kind} without an egograph run record: cannot check that they belong to "
+                      f"recording {rec.seq_dir} (sequence {rec.name})", stacklevel=1)
+        return
+    mine = recording_digest(rec)
+    keys = [k for k in ("sequence", "frames", "timestamps") if k in recorded]
+    if "timestamps" not in recorded and recorded.get("poses") == mine["poses"]:
+        return
+    differ = [k for k in keys if recorded.get(k) != mine[k]]
+    if not differ and "timestamps" not in recorded:
+        # An older record: the same name and length, other poses (refined, or another recording).
+        # A recorded sequence folder that exists and is not this one says which.
+        theirs = Path(str(recorded.get("path", "")))
+        if recorded.get("path") and theirs.is_dir() and theirs.resolve() != Path(rec.seq_dir).resolve():
+            differ = ["path"]
+    if not differ and "timestamps" not in recorded:
+        warnings.warn(f"{what}: {kind} recorded by an older egograph; only its sequence name and frame count "
+                      f"could be checked against {rec.seq_dir}", stacklevel=3)
+        return
+    if differ:
+        theirs = f"{recorded.get('path', '?')} (sequence {recorded.get('sequence')}, {recorded.get('frames')} frames)"
+        ours = f"{rec.seq_dir} (sequence {rec.name}, {len(rec)} frames)"
+        why = "other PV timestamps" if differ == ["timestamps"] else "other " + ", ".join(differ)
+        raise InputError(what, f"{kind} made from recording {theirs}, not from the recording given, {ours} "
+                               f"({why}); give the recording they were made from")
+
+
+def check_results_belong(rec, folder: Path | str, kind: str = "results") -> None:
+    """:func:`check_belongs` for an output folder of egograph (its ``egograph.json``)."""
+    folder = Path(folder)
+    record = previous_record(folder)
+    recorded = None
+    if record is not None:
+        inputs = record.get("inputs") or {}
+        recorded = inputs.get("recording") if isinstance(inputs, dict) else None
+    check_belongs(rec, recorded, folder, kind)
 
 
 def folder_digest(path: Path) -> str:

@@ -225,6 +225,10 @@ def plot(rec: Recording, results: Sequence[str | Path], out: str | Path, cfg, *,
     ticks: dict = {}
     runs = [load_run(rec, Path(r), n, bool(scene.gt), strict=cfg.io.strict, cfg=None if detections else cfg,
                      ticks=ticks) for r, n in zip(results, names)]
+    if not any(run.predictions or run.intervals for run in runs):  # pictures of nothing replace no good ones
+        raise InputError(Path(results[0]), f"no prediction for any PV frame of {rec.seq_dir} in "
+                                           f"{'any of the results folders' if len(runs) > 1 else 'the results folder'}"
+                                           f": nothing to draw ({out} left as it is)")
     slugs = _unique([plots.slug(n) for n in names])
     record = outputs.run_record("plot", cfg, {"recording": outputs.recording_digest(rec),
                                               "results": dict(zip(names, map(str, results))),

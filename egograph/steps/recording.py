@@ -54,6 +54,11 @@ def open_recording(path: str | Path, cfg, *, calibration: str | Path | None = No
     ``score_calibration``: score the candidates even when there is one); ``poses``: a folder written
     by ``egograph refine`` whose poses replace the recording's."""
     rec = _open_with_fit(path, cfg, calibration, annotations, sequence, score_calibration)
+    io = cfg.io
+    if not io.depth_factor:  # the unit read from the values: checked on the mesh when they say 1 mm
+        from egograph.geometry.depth_unit import settle_depth_unit
+
+        settle_depth_unit(rec, stated=False)
     if poses is not None:
         from egograph.poses.refine import apply_poses
 

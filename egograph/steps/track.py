@@ -61,6 +61,7 @@ def read_result(path: str | Path, rec: Recording) -> TrackResult:
     from egograph.track.intervals import read_intervals_json
 
     path = Path(path)
+    outputs.check_results_belong(rec, path)
     per_frame = read_results_dir(path, rec.timestamps)
     intervals, metadata = None, {}
     if (path / INTERVALS_FILE).is_file():
