@@ -36,6 +36,16 @@ def tiny_rgb_rec(tmp_path_factory) -> Path:
     return make_recording(tmp_path_factory.mktemp("tiny_rgb") / "rec", 3, "frames=30")
 
 
+@pytest.fixture(scope="session")
+def device_rec(tmp_path_factory) -> Path:
+    """A 150-frame recording of the device world (synth/device-tiny, seed 2: one carry, frames 61-102,
+    with the hand reaching for it, and fast head turns), with PV RGB frames."""
+    root = tmp_path_factory.mktemp("device") / "rec"
+    cfg = load_config(SynthConfig, synth_config("device-tiny"), ["frames=150"])
+    generate(root, cfg, seed=2, progress=False)
+    return root
+
+
 def sequence_dir(root: Path) -> Path:
     """The sequence folder of a recording root (the one holding ``pv_pose.json``)."""
     return next(p for p in root.iterdir() if (p / "pv_pose.json").is_file())

@@ -287,3 +287,25 @@ def test_refined_calibration_is_written_as_a_release_folder(fit_root, rgb_rec, t
     again = open_recording(start, config(), calibration=out)
     assert np.allclose(again.ahat.extrinsics, ahat.extrinsics)
     assert refine_calibration_folder(rec, config(), out, frames=6, max_evaluations=40) is None   # up to date
+
+
+@pytest.mark.slow
+def test_device_like_frames_do_not_flip_the_choice(device_rec, tmp_path):
+    """Blurred, noisy, compressed PV frames with a hand in view (issue 38's device world): the true
+    folder still scores best, and the perturbed folder the sequence's number names is replaced by it with
+    the warning."""
+    truth = np.load(device_rec / "synth_gt" / sequence_dir(device_rec).name / "device.npz")
+    assert truth["hand_on"].any()   # the hand is in the recording the choice is made on
+    rec = Recording.open(device_rec)
+    true = true_candidate(rec)
+    seq = _release_layout(device_rec, tmp_path, {"calibrations_vid1_17": true,
+                                                     "calibrations_vid18_30": perturb(true, "rot1"),
+                                                     "calibrations_vid31_40": perturb(true, "dt40")})
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        chosen = open_recording(seq, config())
+    scores = chosen.calibration_fit.scores
+    best = min(scores, key=lambda p: scores[p].score)
+    assert best.name == "calibrations_vid1_17", {p.name: s.score for p, s in scores.items()}
+    assert chosen.calibration_dir.name == "calibrations_vid1_17"
+    assert any("fits clearly worse" in str(w.message) and "calibrations_vid18_30" in str(w.message) for w in caught)

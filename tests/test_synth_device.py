@@ -30,14 +30,6 @@ def spearman(a, b) -> float:
     return float(np.corrcoef(ra, rb)[0, 1])
 
 
-@pytest.fixture(scope="module")
-def device_rec(tmp_path_factory):
-    cfg = load_config(SynthConfig, DEVICE_TINY, ["frames=150"])
-    root = tmp_path_factory.mktemp("device") / "rec"
-    generate(root, cfg, seed=SEED, progress=False)
-    return root
-
-
 def _truth(root):
     seq = json.loads((root / "recording.json").read_text())["sequence"]
     gt = root / "synth_gt" / seq
