@@ -430,3 +430,30 @@ def test_a_ctrl_c_swallowed_by_a_library_import_stops_the_run(case, monkeypatch)
     finally:
         signal.signal(signal.SIGINT, before)
     assert got == 130 and changed == [], (err, changed)
+
+
+def test_a_stated_depth_unit_is_checked_on_the_mesh(tiny_rec):
+    """io.depth_factor stated against the evidence (the synthetic AHAT writes 4 mm units): a warning
+    that names the knob and both units, an error with --strict; the right unit passes silently."""
+    import warnings
+
+    from egograph.core.config import load_config
+    from egograph.core.errors import InputError
+    from egograph.core.resources import default_config
+    from egograph.steps.recording import open_recording
+    from egograph.steps.settings import EgographConfig
+
+    def cfg(*sets):
+        return load_config(EgographConfig, default_config(), list(sets))
+
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        assert open_recording(tiny_rec, cfg("io.depth_factor=1")).depth_factor == 1.0
+    said = [str(w.message) for w in caught if "io.depth_factor states" in str(w.message)]
+    assert len(said) == 1 and "supports 4 mm" in said[0] and "4x off" in said[0], said
+    with pytest.raises(InputError, match="io.depth_factor states raw depth in 1 mm"):
+        open_recording(tiny_rec, cfg("io.depth_factor=1", "io.strict=true"))
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        open_recording(tiny_rec, cfg("io.depth_factor=4", "io.strict=true"))
+    assert not [w for w in caught if "depth_factor" in str(w.message)]

@@ -82,12 +82,27 @@ def mesh_depth_unit(rec, frames: int = 5, pixels: int = 2000) -> tuple[float | N
     return None, share
 
 
-def settle_depth_unit(rec, stated: bool) -> None:
-    """Make the raw unit of ``rec`` evidence-based: a stated unit (``io.depth_factor``) is kept; a
-    4 mm reading from the values (wrapped ranges prove it) is kept; a 1 mm reading from the values
-    is checked on the mesh, corrected to 4 mm with a warning when the mesh says so, and warned
-    about as a guess when nothing can check it."""
-    if stated or rec.depth_factor != 1.0:
+def settle_depth_unit(rec, stated: bool, strict: bool = False) -> None:
+    """Make the raw unit of ``rec`` evidence-based: a stated unit (``io.depth_factor``) is checked on
+    the mesh and kept, with a warning when the mesh clearly supports the other unit (an
+    :class:`InputError` with ``strict``); a 4 mm reading from the values (wrapped ranges prove it) is
+    kept; a 1 mm reading from the values is checked on the mesh, corrected to 4 mm with a warning when
+    the mesh says so, and warned about as a guess when nothing can check it."""
+    if stated:
+        unit, share = mesh_depth_unit(rec)
+        if unit is not None and unit != rec.depth_factor:
+            where = rec.seq_dir / "depth_ahat"
+            msg = (f"io.depth_factor states raw depth in {rec.depth_factor:g} mm units, "
+                   f"but the mesh supports {unit:g} mm ({share[unit]:.0%} of sampled readings agree at {unit:g} mm, "
+                   f"{share.get(rec.depth_factor, 0.0):.0%} at {rec.depth_factor:g} mm): every lifted range would be "
+                   f"{unit / rec.depth_factor:g}x off")
+            if strict:
+                from egograph.core.errors import InputError
+
+                raise InputError(where, msg)
+            warnings.warn(f"{where}: {msg}", stacklevel=3)
+        return
+    if rec.depth_factor != 1.0:
         return
     unit, share = mesh_depth_unit(rec)
     if unit == 1.0:

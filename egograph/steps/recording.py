@@ -55,10 +55,10 @@ def open_recording(path: str | Path, cfg, *, calibration: str | Path | None = No
     by ``egograph refine`` whose poses replace the recording's."""
     rec = _open_with_fit(path, cfg, calibration, annotations, sequence, score_calibration)
     io = cfg.io
-    if not io.depth_factor:  # the unit read from the values: checked on the mesh when they say 1 mm
-        from egograph.geometry.depth_unit import settle_depth_unit
+    # the unit checked on the mesh: a stated one always, one read from the values when they say 1 mm
+    from egograph.geometry.depth_unit import settle_depth_unit
 
-        settle_depth_unit(rec, stated=False)
+    settle_depth_unit(rec, stated=bool(io.depth_factor), strict=io.strict)
     if poses is not None:
         from egograph.poses.refine import apply_poses
 
