@@ -4,7 +4,7 @@
     .venv/bin/python tools/bench_graph_speed.py [--frames 1000 10000 50000] [--set detections]
 
 Long recordings are made by laying the cached benchmark observations (egograph.synth.benchset,
-robust lifting, 8 instances, 3000 frames each) end to end in time, seed after seed, so the
+robust lifting, 8 instances, 3000 frames each by default) end to end in time, seed after seed, so the
 detection statistics are those of the benchmark. Timed: `graph_tracker` offline (chunking,
 graph building, Levenberg-Marquardt per instance, segments, interval re-solves with
 marginals), without negative evidence (which reads depth frames and is timed by the
@@ -41,15 +41,15 @@ FRAME = 333_333
 SEEDS = (1, 2, 3, 4, 5)  # tuning recordings: the solve's speed, not its accuracy, is measured here
 
 
-def long_stream(n_frames: int, det_set: str, cache: Path,
-                seeds: Sequence[int] = SEEDS) -> tuple[Observations, np.ndarray]:
-    """Benchmark observations of the 3000-frame recordings ``seeds`` (generated into ``cache`` when
-    missing) laid end to end to ``n_frames`` frames (ticks on a 30 fps grid)."""
+def long_stream(n_frames: int, det_set: str, cache: Path, seeds: Sequence[int] = SEEDS,
+                rec_frames: int = 3000) -> tuple[Observations, np.ndarray]:
+    """Benchmark observations of the ``rec_frames``-frame recordings ``seeds`` (generated into
+    ``cache`` when missing) laid end to end to ``n_frames`` frames (ticks on a 30 fps grid)."""
     parts, offset, k = [], 0, 0
     cfg = load_config(EgographConfig, default_config())
     cfg.lift.mode = "robust"
     streams = []
-    for root in benchmark_set(seeds, 3000, config=synth_config("svoe"), cache=cache):
+    for root in benchmark_set(seeds, rec_frames, config=synth_config("svoe"), cache=cache):
         # reported poses, the default config; lifted when not cached yet
         streams.append(cached_observations(open_recording(root, cfg), det_set, cfg)[0])
     while offset < n_frames:
@@ -58,7 +58,7 @@ def long_stream(n_frames: int, det_set: str, cache: Path,
         obs.frame = obs.frame + offset
         obs.timestamps = T0 + FRAME * obs.frame.astype(np.int64)
         parts.append(obs)
-        offset += 3000
+        offset += rec_frames
         k += 1
     return Observations.concatenate(parts), T0 + FRAME * np.arange(n_frames, dtype=np.int64)
 
@@ -69,14 +69,15 @@ def main() -> None:
     ap.add_argument("--set", dest="det_set", default="mvpe", help="detection set (mvpe has the most detections)")
     ap.add_argument("--cache", type=Path, default=DEFAULT_CACHE)
     ap.add_argument("--seeds", type=int, nargs="+", default=list(SEEDS),
-                    help="the 3000-frame benchmark recordings laid end to end (generated when not cached)")
+                    help="the benchmark recordings laid end to end (generated when not cached)")
+    ap.add_argument("--rec-frames", type=int, default=3000, help="frames of each of those recordings")
     ap.add_argument("--repeat", type=int, default=2, help="best of N runs per size")
     benchdoc.add_arguments(ap, __file__)
     args = ap.parse_args()
     benchdoc.start(__file__, args)
     rows, table = [], []
     for n in args.frames:
-        obs, ts = long_stream(n, args.det_set, args.cache, args.seeds)
+        obs, ts = long_stream(n, args.det_set, args.cache, args.seeds, args.rec_frames)
         times = {}
         for name, fn in (("switchable", lambda: graph_tracker(obs, ts, GraphConfig(negative_evidence=False))),
                          ("dcs", lambda: graph_tracker(obs, ts, GraphConfig(negative_evidence=False, switches="dcs"))),

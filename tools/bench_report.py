@@ -210,13 +210,15 @@ SECTIONS: tuple[Section, ...] = (
             modules=BASE + SYNTH + FRONTEND + STEPS, quick_min=6),
     Section("bench_graph_speed", "Graph solve time against recording length",
             "The offline graph solve (noise-scale fit included, negative evidence excluded) on the MVPE "
-            "observations of benchmark recordings 1-5 laid end to end, 8 instances, with both motion-break "
-            "factors (switchable CustomFactor, DCS), against the `kf` baseline in the same run.",
+            "observations of benchmark recordings (1-5 in the full tier) laid end to end, 8 instances, with both "
+            "motion-break factors (switchable CustomFactor, DCS), against the `kf` baseline in the same run.",
             f"{PY} tools/bench_graph_speed.py --frames 1000 10000 50000",
-            quick=f"{PY} tools/bench_graph_speed.py --frames 1000 10000 --seeds 1 2 --repeat 1",
-            sizes=(("quick", "1000 and 10,000 frames from tuning recordings 1-2 (3000 frames each), best of 1"),
+            quick=f"{PY} tools/bench_graph_speed.py --frames 1000 10000 --seeds {QUICK_HELD_OUT} --rec-frames 1000 "
+            "--repeat 1",
+            sizes=(("quick", "1000 and 10,000 frames from held-out recordings 301-302 (1000 frames each, the quick "
+                             "tier's), best of 1"),
                    ("full", "1000, 10,000 and 50,000 frames from tuning recordings 1-5 (3000 frames each), best of 2")),
-            modules=BASE + SYNTH + LIFT + TRACK, quick_min=14),
+            modules=BASE + SYNTH + LIFT + TRACK, quick_min=2),
     Section("bench_lift-svoe", "Lifting: SVOE",
             "3D error of the lifted true detections against `synth_gt/`, reference and robust lifting, with the "
             "reported and with the true poses (the lifting error alone), on 5 held-out recordings; lifting speed "
@@ -533,7 +535,9 @@ def regenerate(tier: str, only: list[str] | None, workers: int, scheduler: str |
                         running[pool.submit(one, s)] = s
                 if not running:
                     continue
-                finished, _ = wait(list(running), return_when=FIRST_COMPLETED)
+                finished, _ = wait(list(running), timeout=60, return_when=FIRST_COMPLETED)
+                with lock:   # the wall time so far, should this invocation be killed
+                    save()
                 for f in finished:
                     s, rc = f.result()
                     del running[f]
