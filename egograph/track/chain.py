@@ -22,7 +22,7 @@ from egograph.track.detection_factor import add_detection_factors
 from egograph.track.switchable import (
     dcs_between,
     dcs_phi,
-    dcs_switch_value,
+    dcs_switch_values,
     switch_clipped,
     switch_prior,
     switchable_between,
@@ -110,8 +110,7 @@ def _switch_values(result: gtsam.Values | None, landmarks: np.ndarray, cfg: Grap
     n = len(landmarks)
     if cfg.switches == "switchable":
         return np.array([switch_clipped(result, S(k)) for k in range(1, n)])
-    phi = dcs_phi(cfg.switch_sigma)
-    return np.array([dcs_switch_value(landmarks[k - 1], landmarks[k], cfg.still_sigma_m, phi) for k in range(1, n)])
+    return dcs_switch_values(landmarks, cfg.still_sigma_m, dcs_phi(cfg.switch_sigma)).reshape(max(n - 1, 0))
 
 
 def _landmarks_of(result: gtsam.Values, n: int) -> np.ndarray:
