@@ -316,14 +316,17 @@ SECTIONS: tuple[Section, ...] = (
             "--set colmap_stride=1 --json-tag colmap-every-frame",
             sizes=RGB_SIZES, modules=BASE + SYNTH + POSES + STEPS, quick_min=4),
     Section("bench_run", "`egograph run` on Dask: 2 workers against 1, and a kill",
-            "4 synthetic sequences x 3000 frames, stages lift, track, eval, trackers memory, kf, graph, once with "
-            "one local worker and once with two; then a 2-worker run killed with SIGKILL (scheduler, nanny and "
-            "workers) half way and started again.",
-            f"{PY} tools/bench_run.py --sequences 4 --frames 3000 --kill-after 0.5",
-            quick=f"{PY} tools/bench_run.py --sequences 2 --frames 600 --kill-after 0.5",
-            sizes=(("quick", "2 sequences x 600 frames, stages lift, track, eval"),
-                   ("full", "4 sequences x 3000 frames, stages lift, track, eval")),
-            modules=SET_TRACKING + ("egograph/cli",), quick_min=8),
+            "Synthetic sequences with PV RGB through every stage a dataset run has (`egograph detect`'s front-end, "
+            "lift, track with memory, kf and graph, eval), once with one local worker and once with two: wall "
+            "time, throughput, CPU per stage per frame, peak memory per worker process, bytes written per frame; "
+            "then a 2-worker run killed with SIGKILL (scheduler, nanny and workers) half way and started again "
+            "(what it did again, and whether its summary equals the uninterrupted run's); and the projection of "
+            "50 recordings x 10,000 frames on 16 workers from the measured per-stage costs.",
+            f"{PY} tools/bench_run.py --sequences 8 --frames 3000 --stages detect,lift,track,eval --kill-after 0.5",
+            quick=f"{PY} tools/bench_run.py --sequences 2 --frames 150 --stages detect,lift,track,eval --kill-after 0.5",
+            sizes=(("quick", "2 sequences x 150 frames with PV RGB, stages detect, lift, track, eval"),
+                   ("full", "8 sequences x 3000 frames with PV RGB, stages detect, lift, track, eval")),
+            modules=SET_TRACKING + FRONTEND + ("egograph/cli",), quick_min=12),
     Section("bench_synth", "Synthetic generator and reader speed",
             "Frames per CPU-second of the generator on one core without RGB and with RGB (OpenGL rasteriser "
             "and the ray-cast reference renderer), the PV colour stage alone, and reading poses + depth.",
