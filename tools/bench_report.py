@@ -511,7 +511,7 @@ def regenerate(tier: str, only: list[str] | None, workers: int, scheduler: str |
             if rc == 0:
                 stamp(path, s, tier, command)
             inv["sections"][s.stem] = {"status": "ok" if rc == 0 else "failed", "exit": rc,
-                                       "wall_s": round(wall, 1), "cpu_s": round(cpu, 1) if client is None else None}
+                                       "wall_s": round(wall, 1), "cpu_s": round(cpu, 1)}
             save()
             render_files(bench_dir, out, sections)
         print(f"[{s.stem}] {'done' if rc == 0 else f'FAILED (exit {rc}; see {logfile})'} in {wall / 60:.1f} min",
