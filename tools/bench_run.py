@@ -78,7 +78,8 @@ def run(ds: Path, runs: Path, workers: int, stages: str, trackers: str, detectio
     if p.returncode not in (0, 1) or not run_json.is_file():
         sys.exit(f"egograph run --workers {workers} exited {p.returncode}:\n{p.stdout[-2000:]}\n{p.stderr[-2000:]}")
     tasks = json.loads(run_json.read_text())["tasks"]
-    return wall, {"failed": sorted(k for k, t in tasks.items() if t.get("status") != "ok"),"task_seconds": sum(t["seconds"] or 0 for t in tasks.values()),
+    return wall, {"failed": sorted(k for k, t in tasks.items() if t.get("status") != "ok"),
+                  "task_seconds": sum(t["seconds"] or 0 for t in tasks.values()),
                   "task_cpu": sum(t.get("cpu_seconds") or 0 for t in tasks.values()),
                   "tasks": tasks, "bytes": folder_bytes(runs),
                   "summary": (runs / "latest" / "summary.json").read_bytes()}
