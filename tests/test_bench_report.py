@@ -25,7 +25,8 @@ def test_committed_benchmarks_page_is_what_the_records_render():
     assert page.is_file(), "docs/benchmarks.md is missing: run tools/bench_report.py"
     assert bench_report.main(["--check"]) == 0, "docs/benchmarks.md is stale: run .venv/bin/python tools/bench_report.py"
     bench = REPO / "docs" / "bench"
-    assert page.read_text() == bench_report.render(bench_report.load(bench), regens=bench_report.load_regenerations(bench))
+    regens = bench_report.load_regenerations(bench)
+    assert page.read_text() == bench_report.render(bench_report.load(bench), regens=regens)
 
 
 def test_every_section_has_a_quick_tier_with_its_sizes_and_modules():
@@ -164,7 +165,7 @@ def test_the_readme_score_tables_are_rendered_from_the_records():
     sys.path.insert(0, str(REPO / "tools"))
     import bench_report
 
-    docs = bench_report.load(REPO / "docs" / "bench")
+    docs = bench_report.readme_docs(REPO / "docs" / "bench", bench_report.load(REPO / "docs" / "bench"))
     readme = (REPO / "README.md").read_text()
     assert bench_report.README_BEGIN in readme and bench_report.README_END in readme
     block = bench_report.readme_scores(docs)
@@ -172,6 +173,11 @@ def test_the_readme_score_tables_are_rendered_from_the_records():
     # a changed record changes the README block: nothing in it is typed by hand
     tampered = bench_report.with_readme_scores(readme.replace(block, "| stale |"), docs)
     assert tampered == readme
+    # the README's records are the full-size ones: its own copies, with their provenance in the block
+    for stem in bench_report.README_RECORDS:
+        assert (REPO / "docs" / "bench" / "readme" / f"{stem}.json").is_file(), stem
+        commit = docs[stem]["egograph"]["commit"][:10]
+        assert f"at `{commit}`" in block
 
 
 def _fake_repo(tmp_path: Path) -> Path:
