@@ -360,7 +360,6 @@ def test_killed_run_resumes_and_redoes_nothing(dataset, reference_run, tmp_path)
 def test_a_task_reports_its_worker_process_and_its_peak_memory(tmp_path):
     """run.json's worker_pid and worker_max_rss_mb (tools/bench_run.py's memory per worker), also for
     a task that failed."""
-
     from egograph.steps.run import run_task
 
     res = run_task({"key": "lift/seq01", "stage": "lift", "out": str(tmp_path / "lift.npz"),
