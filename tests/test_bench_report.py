@@ -24,7 +24,34 @@ def test_committed_benchmarks_page_is_what_the_records_render():
     page = REPO / "docs" / "benchmarks.md"
     assert page.is_file(), "docs/benchmarks.md is missing: run tools/bench_report.py"
     assert bench_report.main(["--check"]) == 0, "docs/benchmarks.md is stale: run .venv/bin/python tools/bench_report.py"
-    assert page.read_text() == bench_report.render(bench_report.load(REPO / "docs" / "bench"))
+    bench = REPO / "docs" / "bench"
+    regens = bench_report.load_regenerations(bench)
+    assert page.read_text() == bench_report.render(bench_report.load(bench), regens=regens)
+
+
+def test_every_section_has_a_record():
+    """No section of docs/benchmarks.md says 'Not yet regenerated': each has a record in docs/bench/
+    (`tools/bench_report.py --regenerate --tier quick` makes the missing ones)."""
+    docs = bench_report.load(REPO / "docs" / "bench")
+    missing = [s.stem for s in bench_report.SECTIONS if s.stem not in docs]
+    assert not missing, f"sections without a record: {missing}"
+
+
+def test_every_section_has_a_quick_tier_with_its_sizes_and_modules():
+    for s in bench_report.SECTIONS:
+        tool = f"tools/{s.tool}.py"
+        assert tool in s.quick and s.quick != s.command, s.stem
+        tag = s.stem.split("-", 1)[1] if "-" in s.stem else None
+        assert (f"--json-tag {tag}" in s.quick) == (tag is not None), (s.stem, s.quick)
+        assert s.size("quick") and s.size("full") and s.size("quick") != s.size("full"), s.stem
+        assert s.paths()[0] == tool and s.modules, s.stem
+        for m in s.paths():
+            assert (REPO / m).exists(), (s.stem, m)
+        assert all(a in {x.stem for x in bench_report.SECTIONS} for a in s.after), s.stem
+    order = [s.stem for s in bench_report.select(None)]
+    assert len(order) == len(bench_report.SECTIONS)
+    for s in bench_report.SECTIONS:   # a section runs after the one whose outputs it reads
+        assert all(order.index(a) < order.index(s.stem) for a in s.after), s.stem
 
 
 def test_every_record_is_named_by_a_section_and_every_section_names_a_tool():
@@ -108,7 +135,8 @@ def test_render_is_deterministic_and_says_what_is_missing(tmp_path, capsys):
     # a record no section names is still shown; every section without a record gives its command
     assert "## Other recorded runs" in a and "### bench_madeup" in a
     for s in bench_report.SECTIONS:
-        assert f"Not yet regenerated: run `{s.command}`" in a
+        assert f"Not yet regenerated: run `.venv/bin/python tools/bench_report.py --regenerate --only {s.stem}`" in a
+        assert f"full tier: `{s.command}`" in a and f"quick tier: `{s.quick}`" in a
 
 
 def test_check_fails_with_a_diff_on_a_stale_page(tmp_path, capsys):
@@ -145,7 +173,7 @@ def test_the_readme_score_tables_are_rendered_from_the_records():
     sys.path.insert(0, str(REPO / "tools"))
     import bench_report
 
-    docs = bench_report.load(REPO / "docs" / "bench")
+    docs = bench_report.readme_docs(REPO / "docs" / "bench", bench_report.load(REPO / "docs" / "bench"))
     readme = (REPO / "README.md").read_text()
     assert bench_report.README_BEGIN in readme and bench_report.README_END in readme
     block = bench_report.readme_scores(docs)
@@ -153,3 +181,102 @@ def test_the_readme_score_tables_are_rendered_from_the_records():
     # a changed record changes the README block: nothing in it is typed by hand
     tampered = bench_report.with_readme_scores(readme.replace(block, "| stale |"), docs)
     assert tampered == readme
+    # the README's records are the full-size ones: its own copies, with their provenance in the block
+    for stem in bench_report.README_RECORDS:
+        assert (REPO / "docs" / "bench" / "readme" / f"{stem}.json").is_file(), stem
+        commit = docs[stem]["egograph"]["commit"][:10]
+        assert f"at `{commit}`" in block
+
+
+def _fake_repo(tmp_path: Path) -> Path:
+    repo = tmp_path / "repo"
+    (repo / "tools").mkdir(parents=True)
+    (repo / "pkg").mkdir()
+    (repo / "tools" / "bench_madeup.py").write_text("print(1)\n")
+    (repo / "pkg" / "a.py").write_text("x = 1\n")
+    (repo / "pkg" / "b.yaml").write_text("k: 1\n")
+    return repo
+
+
+def test_the_module_digest_changes_with_the_code_and_the_page_says_so(tmp_path, capsys):
+    repo = _fake_repo(tmp_path)
+    sec = bench_report.Section("bench_madeup", "Made-up", "What it measures.", ".venv/bin/python tools/bench_madeup.py",
+                               quick=".venv/bin/python tools/bench_madeup.py --quick",
+                               sizes=(("quick", "1 x 10 frames"), ("full", "9 x 90 frames")), modules=("pkg",))
+    d0 = bench_report.modules_digest(sec.paths(), repo)
+    assert d0 == bench_report.modules_digest(sec.paths(), repo) and len(d0) == 16
+    path, _ = _record(tmp_path, capsys)
+    doc = json.loads(path.read_text())
+    doc["regeneration"] = {"tier": "quick", "sizes": sec.size("quick"), "modules": list(sec.paths()),
+                           "modules_digest": d0}
+    assert bench_report.modules_changed(sec, doc, repo) is False
+    assert bench_report.is_current(sec, doc, "quick", repo) and not bench_report.is_current(sec, doc, "full", repo)
+    page = bench_report.render({"bench_madeup": doc}, (sec,), repo=repo)
+    assert "- tier: quick (1 x 10 frames)" in page and "unchanged since" in page and "| quick |" in page
+    (repo / "pkg" / "a.py").write_text("x = 2\n")   # the code the section exercises changes
+    assert bench_report.modules_digest(sec.paths(), repo) != d0
+    assert bench_report.modules_changed(sec, doc, repo) is True
+    assert not bench_report.is_current(sec, doc, "quick", repo)
+    page = bench_report.render({"bench_madeup": doc}, (sec,), repo=repo)
+    assert "**changed since**: re-run `tools/bench_report.py --regenerate --only bench_madeup`" in page
+    (repo / "pkg" / "a.py").write_text("x = 1\n")
+    (repo / "pkg" / "__pycache__").mkdir()
+    (repo / "pkg" / "__pycache__" / "a.pyc").write_bytes(b"compiled")   # not code the digest covers
+    assert bench_report.modules_digest(sec.paths(), repo) == d0
+    del doc["regeneration"]   # a record made by hand keeps no digest
+    assert bench_report.modules_changed(sec, doc, repo) is None
+    page = bench_report.render({"bench_madeup": doc}, (sec,), repo=repo)
+    assert "whether its code changed since is not known" in page
+
+
+WRITER = """import sys
+sys.path.insert(0, {tools!r})
+import benchdoc
+out, mark = sys.argv[1], sys.argv[2]
+if mark == 'fail':
+    sys.exit(3)
+tool = out.rsplit('/', 1)[1].split('-')[0].removesuffix('.json')
+benchdoc.start('tools/' + tool + '.py', {{'json': out}}, argv=[mark])
+benchdoc.table('t', ['a'], [[1]], ['d'])
+benchdoc.finish()
+"""
+
+
+def test_a_killed_regeneration_resumes_without_running_finished_sections_again(tmp_path, monkeypatch):
+    bench_dir, out = tmp_path / "bench", tmp_path / "benchmarks.md"
+    bench_dir.mkdir()
+    writer = tmp_path / "writer.py"
+    writer.write_text(WRITER.format(tools=str(REPO / "tools")))
+    monkeypatch.setattr(bench_report, "LOG_DIR", tmp_path / "logs")
+    calls = tmp_path / "calls.txt"
+
+    def sections(second: str) -> tuple:
+        def cmd(stem, mark):   # appends its stem to calls.txt, then writes the record (or fails)
+            return f"echo {stem} >> {calls} && {sys.executable} {writer} {bench_dir / (stem + '.json')} {mark}"
+        mods = ("tests/test_bench_report.py",)
+        return (bench_report.Section("bench_aa", "A", "a.", cmd("bench_aa", "full"), quick=cmd("bench_aa", "quick"),
+                                     sizes=(("quick", "small"), ("full", "big")), modules=mods, quick_min=1),
+                bench_report.Section("bench_bb", "B", "b.", cmd("bench_bb", "full"), quick=cmd("bench_bb", second),
+                                     sizes=(("quick", "small"), ("full", "big")), modules=mods, quick_min=2,
+                                     after=("bench_aa",)))
+
+    # the first run stops at the second section (as a kill would): its record is missing
+    assert bench_report.regenerate("quick", None, 1, None, bench_dir, out, sections=sections("fail")) == 1
+    assert calls.read_text().split() == ["bench_aa", "bench_bb"]
+    docs = bench_report.load(bench_dir)
+    assert list(docs) == ["bench_aa"] and docs["bench_aa"]["regeneration"]["tier"] == "quick"
+    assert docs["bench_aa"]["argv"] == ["quick"]
+    # resumed: the finished section is kept, only the other runs
+    assert bench_report.regenerate("quick", None, 1, None, bench_dir, out, sections=sections("quick")) == 0
+    assert calls.read_text().split() == ["bench_aa", "bench_bb", "bench_bb"]
+    log = json.loads((bench_dir / "regeneration" / "quick.json").read_text())
+    assert len(log["invocations"]) == 2 and log["complete"]
+    assert log["invocations"][1]["sections"] == {"bench_bb": log["invocations"][1]["sections"]["bench_bb"]}
+    page = out.read_text()
+    assert "**Last quick-tier regeneration**" in page and "in 2 invocations (killed or stopped, then resumed)" in page
+    assert page.count("- tier: quick (small)") == 2
+    # everything current: nothing runs; the full tier runs both again
+    assert bench_report.regenerate("quick", None, 1, None, bench_dir, out, sections=sections("quick")) == 0
+    assert calls.read_text().split() == ["bench_aa", "bench_bb", "bench_bb"]
+    assert bench_report.regenerate("full", ["bench_bb"], 1, None, bench_dir, out, sections=sections("quick")) == 0
+    assert calls.read_text().split()[-1] == "bench_bb" and bench_report.load(bench_dir)["bench_bb"]["argv"] == ["full"]

@@ -355,3 +355,14 @@ def test_killed_run_resumes_and_redoes_nothing(dataset, reference_run, tmp_path)
     assert len(after) > len(before)
     assert (runs / "latest" / "summary.json").read_bytes() == (reference_run / "summary.json").read_bytes()
     assert not math.isnan(json.loads((runs / "latest" / "summary.json").read_text())["evaluation"]["kf"]["l2_m"])
+
+
+def test_a_task_reports_its_worker_process_and_its_peak_memory(tmp_path):
+    """run.json's worker_pid and worker_max_rss_mb (tools/bench_run.py's memory per worker), also for
+    a task that failed."""
+    from egograph.steps.run import run_task
+
+    res = run_task({"key": "lift/seq01", "stage": "lift", "out": str(tmp_path / "lift.npz"),
+                    "log": str(tmp_path / "logs" / "lift.txt")})
+    assert res["status"] == "failed" and res["worker_pid"] == os.getpid()
+    assert 10 < res["worker_max_rss_mb"] < 1e6

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import dataclasses
 
+import gtsam
 import numpy as np
 import pytest
 
@@ -246,3 +247,33 @@ def test_cutting_candidate_windows_keeps_the_intervals():
     for x, y in zip(whole.intervals, cut.intervals):
         assert np.linalg.norm(np.subtract(x.xyz, y.xyz)) < 0.01
         assert abs(frames_of(x)[0] - frames_of(y)[0]) <= 3 and abs(frames_of(x)[1] - frames_of(y)[1]) <= 3
+
+
+def test_chunk_medians_are_np_median_per_chunk_bit_for_bit():
+    from egograph.track.chain import _chunk_medians
+
+    rng = np.random.default_rng(5)
+    chunk = np.sort(rng.integers(0, 40, 500))
+    chunk = np.unique(chunk, return_inverse=True)[1]          # chunks 0..n-1, odd and even counts, singles
+    world = rng.normal(size=(500, 3)) * [1.0, 1e-3, 1e3]
+    n = int(chunk.max()) + 1
+    want = np.array([np.median(world[chunk == k], axis=0) for k in range(n)])
+    assert np.array_equal(_chunk_medians(world, chunk, n), want)
+    world[7, 1] = np.nan                                       # NaN: np.median's answer for that chunk
+    want = np.array([np.median(world[chunk == k], axis=0) for k in range(n)])
+    assert np.array_equal(_chunk_medians(world, chunk, n), want, equal_nan=True)
+
+
+def test_detection_noise_models_are_made_once_per_covariance_and_kernel():
+    from egograph.track.detection_factor import detection_noise_model
+
+    c = np.diag([0.01, 0.02, 0.03])
+    a = detection_noise_model(c, "cauchy", 1.0)
+    assert detection_noise_model(c.copy(), "cauchy", 1.0) is a           # same bytes: the same model
+    assert detection_noise_model(c, "huber", 1.0) is not a
+    assert detection_noise_model(c * 2, "cauchy", 1.0) is not a
+    assert isinstance(detection_noise_model(c, "none", 1.0), gtsam.noiseModel.Gaussian)
+    e = np.array([0.1, -0.2, 0.05])
+    fresh = gtsam.noiseModel.Robust.Create(gtsam.noiseModel.mEstimator.Cauchy.Create(1.0),
+                                           gtsam.noiseModel.Gaussian.Covariance(c))
+    assert a.loss(a.mahalanobisDistance(e)) == fresh.loss(fresh.mahalanobisDistance(e))

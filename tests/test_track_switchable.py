@@ -120,3 +120,13 @@ def test_dcs_switch_value_closed_form():
     assert dcs_switch_value([0, 0, 0], [0, 0, 0], 0.05, 4.0) == 1.0
     d2 = (0.3 / 0.05) ** 2
     assert dcs_switch_value([0, 0, 0], [0.3, 0, 0], 0.05, 4.0) == pytest.approx(8 / (4 + d2))
+
+
+def test_dcs_switch_values_are_the_pairwise_values_bit_for_bit():
+    from egograph.track.switchable import dcs_switch_values
+
+    rng = np.random.default_rng(1)
+    landmarks = rng.normal(size=(400, 3)) * rng.uniform(0, 0.3, (400, 1))
+    want = [dcs_switch_value(landmarks[k - 1], landmarks[k], 0.05, 3.3) for k in range(1, 400)]
+    assert dcs_switch_values(landmarks, 0.05, 3.3).tolist() == want
+    assert dcs_switch_values(landmarks[:1], 0.05, 3.3).shape == (0,)

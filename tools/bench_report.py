@@ -17,9 +17,16 @@ reads the clock or the machine. No figure in docs/benchmarks.md is typed by hand
 from __future__ import annotations
 
 import argparse
+import datetime as _dt
 import difflib
+import hashlib
 import json
+import os
+import subprocess
 import sys
+import threading
+import time
+from concurrent.futures import FIRST_COMPLETED, ThreadPoolExecutor, wait
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -29,23 +36,80 @@ REPO = Path(__file__).resolve().parents[1]
 BENCH_DIR = REPO / "docs" / "bench"
 OUT = REPO / "docs" / "benchmarks.md"
 PY = ".venv/bin/python"
+REGEN_DIR_NAME = "regeneration"  # docs/bench/regeneration/<tier>.json: the last regeneration's log
+REGEN_FORMAT = "egograph-regeneration/1"
+LOG_DIR = REPO / ".cache" / "regenerate"  # each section's output while it regenerates
 
 
 @dataclass(frozen=True)
 class Section:
     """One benchmark run: its JSON file's stem (``<tool>[-<tag>]``), a heading, what it measures
-    (no figures: those come from the JSON), and the command that regenerates the file."""
+    (no figures: those come from the JSON), and the command that regenerates the file at the sizes
+    the docs quote (the full tier).
+
+    ``quick`` is the same benchmark on fewer or shorter recordings of the same held-out seeds (the
+    quick tier: every section in about an hour on 2 cores); ``sizes`` says what each tier runs, as
+    the page shows it. ``modules`` are the paths (folders or files, from the repository root) whose
+    code the benchmark exercises besides its own tool: their digest is kept in the record, and the
+    page says whether they changed since. ``quick_min`` is the quick tier's measured or estimated
+    cost in minutes on this 2-core machine: regeneration runs cheap sections first. ``after``: the
+    sections whose outputs this one reads (run first)."""
 
     stem: str
     heading: str
     about: str
     command: str
+    quick: str = ""
+    sizes: tuple[tuple[str, str], ...] = ()
+    modules: tuple[str, ...] = ()
+    quick_min: float = 5.0
+    after: tuple[str, ...] = ()
 
+    @property
+    def tool(self) -> str:
+        return self.stem.split("-", 1)[0]
+
+    def command_for(self, tier: str) -> str:
+        return self.quick if tier == "quick" and self.quick else self.command
+
+    def size(self, tier: str) -> str:
+        return dict(self.sizes).get(tier, "")
+
+    def paths(self) -> tuple[str, ...]:
+        """What the module digest covers: the tool, tools/benchset.py when the tool reads the
+        benchmark set, and ``modules``."""
+        return (f"tools/{self.tool}.py", *self.modules)
+
+
+TIERS = ("quick", "full")
+"""Regeneration tiers, smallest first: a record of a later tier also counts as current for an earlier one."""
+
+# The packages a benchmark exercises, for the staleness digest (configs: the defaults every run reads).
+BASE = ("egograph/core", "egograph/io", "egograph/configs")
+SYNTH = ("egograph/synth",)
+LIFT = ("egograph/geometry",)
+TRACK = ("egograph/track", "egograph/eval")
+POSES = ("egograph/poses",)
+FRONTEND = ("egograph/frontend",)
+STEPS = ("egograph/steps",)
+SET_TRACKING = BASE + SYNTH + LIFT + TRACK + STEPS
 
 HELD_OUT_12 = "$(seq 301 312)"
 HELD_OUT_5 = "$(seq 301 305)"
+QUICK_HELD_OUT = "301 302"  # the quick tier: the first two held-out recordings, 1000 frames each
+QUICK_SIZE = "2 held-out recordings x 1000 frames (seeds 301, 302)"
+FULL_12 = "12 held-out recordings x 3000 frames (seeds 301-312)"
+HELD_OUT_12_SIZES = (("quick", QUICK_SIZE), ("full", FULL_12))
+HELD_OUT_5_SIZES = (("quick", QUICK_SIZE), ("full", "5 held-out recordings x 3000 frames (seeds 301-305)"))
+JOINT_SIZES = (("quick", "1 held-out recording x 1000 frames (seed 301)"),
+               ("full", "3 held-out recordings x 3000 frames (seeds 301-303)"))
+RGB_SIZES = (("quick", "one RGB recording x 150 frames (seed 1)"), ("full", "one RGB recording x 300 frames (seed 1)"))
+FRONTEND_SIZES = (("quick", "1 RGB recording x 300 frames (seed 21)"),
+                  ("full", "4 RGB recordings x 1000 frames (seeds 21, 22, 25, 26)"))
 STRONG_POSE_ERROR = ("--synth-set pose_error.drift_trans=0.006 --synth-set pose_error.drift_rot=0.1 "
                      "--synth-set pose_error.jump_rate=0.3 --synth-set 'pose_error.jump_trans=[0.04,0.1]'")
+CONFIDENCE_SIZES = (("quick", "2 held-out recordings x 900 frames (seeds 1, 301)"),
+                    ("full", "6 held-out recordings x 900 frames (the demo's seeds 1-3, 301-303)"))
 MILD_POSE_ERROR = ("--synth-set pose_error.drift_trans=0.004 --synth-set pose_error.drift_rot=0.06 "
                    "--synth-set pose_error.jump_rate=0.2")
 
@@ -58,33 +122,49 @@ SECTIONS: tuple[Section, ...] = (
             "evaluator pools sequences; ratios against `kf` on `reference` lifting, the published pipeline. Then "
             "the intervals recovered, the lifting error, the graph's targets and the calibration bands of the "
             "simulated front-ends (memory + reference lifting).",
-            f"{PY} tools/bench_trackers.py --seeds {HELD_OUT_12} --frames 3000 --jobs 2"),
+            f"{PY} tools/bench_trackers.py --seeds {HELD_OUT_12} --frames 3000 --jobs 2",
+            quick=f"{PY} tools/bench_trackers.py --seeds {QUICK_HELD_OUT} --frames 1000 --jobs 2",
+            sizes=HELD_OUT_12_SIZES, modules=SET_TRACKING, quick_min=6),
     Section("bench_causal", "Causal and lagged tracking, online latency",
             "graph-causal (lag 0 and lagged) against memory, kf and the offline graph on the same robust "
             "observations of the 12 held-out recordings, pooled, every threshold; the causal ceiling is the true "
             "centre on every frame from each instance's first detection (no causal tracker can answer before it). "
             "Then recall at 0.25 m against lag, and the per-frame latency of the online API "
             "(`OnlineTracker.step` + `collect`) over a 50,000-frame stream of 8 instances.",
-            f"{PY} tools/bench_causal.py --seeds {HELD_OUT_12} --frames 3000 --plot .cache/lag.png"),
+            f"{PY} tools/bench_causal.py --seeds {HELD_OUT_12} --frames 3000 --plot .cache/lag.png",
+            quick=f"{PY} tools/bench_causal.py --seeds {QUICK_HELD_OUT} --frames 1000 --stream-frames 5000 "
+            "--plot .cache/lag.png",
+            sizes=(("quick", QUICK_SIZE + "; latency over a 5,000-frame stream"),
+                   ("full", FULL_12 + "; latency over a 50,000-frame stream")), modules=SET_TRACKING, quick_min=5),
     Section("bench_trackers-heldout-robust", "Does every egograph tracker beat every baseline? (issue 29)",
             "`memory`, `kf`, `graph` and `graph-causal` on the same robust observations of the 12 held-out "
             "recordings (seeds 301-312; no knob was chosen on them), SVOE and MVPE: the tables pooled, then "
             "whether each egograph tracker's P and R at every threshold are at least memory's and kf's and its L2 "
             "below theirs, pooled and (offline graph) on every recording, with the figures that miss.",
             f"{PY} tools/bench_trackers.py --seeds {HELD_OUT_12} --frames 3000 --modes robust --trackers memory kf "
-            "graph graph-causal --no-oracle --jobs 1 --json-tag heldout-robust --out .cache/bench_trackers_robust"),
+            "graph graph-causal --no-oracle --jobs 1 --json-tag heldout-robust --out .cache/bench_trackers_robust",
+            quick=f"{PY} tools/bench_trackers.py --seeds {QUICK_HELD_OUT} --frames 1000 --modes robust "
+            "--trackers memory kf graph graph-causal --no-oracle --jobs 1 --json-tag heldout-robust "
+            "--out .cache/bench_trackers_robust",
+            sizes=HELD_OUT_12_SIZES, modules=SET_TRACKING, quick_min=3),
     Section("bench_causal-heldout6", "Causal tracking against its ceiling, and P, R, L2 against lag (issue 29)",
             "graph-causal at lags 0, 1, 2, 5, 10 and 30 s against memory, kf, the offline graph and the causal "
             "ceiling on held-out recordings 301-306, robust lifting, pooled: issue 29's causal targets and the lag "
             "at which the causal answer reaches 95 % of the offline recall at 0.25 m.",
-            f"{PY} tools/bench_causal.py --seeds $(seq 301 306) --frames 3000 --no-latency --json-tag heldout6"),
+            f"{PY} tools/bench_causal.py --seeds $(seq 301 306) --frames 3000 --no-latency --json-tag heldout6",
+            quick=f"{PY} tools/bench_causal.py --seeds {QUICK_HELD_OUT} --frames 1000 --no-latency --json-tag heldout6",
+            sizes=(("quick", QUICK_SIZE), ("full", "6 held-out recordings x 3000 frames (seeds 301-306)")),
+            modules=SET_TRACKING, quick_min=3),
     Section("bench_causal-latency", "Online API latency",
             "The per-frame latency of the online API (`OnlineTracker.step` + `collect`, lag 0) over a 20,000-frame "
             "synthetic stream of 8 instances (no rendering: lifted observations, each object seen on about a third "
             "of the frames, 3 % false matches, a carry every ~40 s): median, p99 and maximum over all frames and "
             "the first and last tenth (growth over the stream), wall and CPU time, resident memory. Compare "
             "revisions by running the same command from each checkout in one window: the machine is shared.",
-            f"{PY} tools/bench_causal.py --latency-only --stream-frames 20000 --json-tag latency"),
+            f"{PY} tools/bench_causal.py --latency-only --stream-frames 20000 --json-tag latency",
+            quick=f"{PY} tools/bench_causal.py --latency-only --stream-frames 5000 --json-tag latency",
+            sizes=(("quick", "a 5,000-frame stream of 8 instances"), ("full", "a 20,000-frame stream of 8 instances")),
+            modules=BASE + LIFT + TRACK, quick_min=1),
     Section("bench_confidence-heldout", "Answers with a confidence: curves over confidence, operating point, calibration",
             "Every egograph tracker (`graph`, `graph-causal` at each lag, `memory+graph` smoothing) answers every "
             "frame with a calibrated confidence; per detection set and threshold, the average precision of its "
@@ -95,121 +175,421 @@ SECTIONS: tuple[Section, ...] = (
             "calibration error at 0.25 m. Held out: the calibration and the operating point were fitted on tuning "
             "seeds (`--fit`). A subset of the issue's held-out set (the demo's seeds 1-3 and 301-303, all at 900 "
             "frames; the issue asks 301-312 at 3000 frames besides the demo's): the machine's load allowed no more.",
-            f"{PY} tools/bench_confidence.py --seeds 1 2 3 301 302 303 --frames 900 --json-tag heldout"),
+            f"{PY} tools/bench_confidence.py --seeds 1 2 3 301 302 303 --frames 900 --json-tag heldout",
+            quick=f"{PY} tools/bench_confidence.py --seeds 1 301 --frames 900 --json-tag heldout",
+            sizes=CONFIDENCE_SIZES, modules=BASE + SYNTH + LIFT + TRACK, quick_min=20),
     Section("bench_confidence-heldout-lags", "Answers with a confidence: graph-causal with a lag",
             "The same held-out recordings with graph-causal at lags of 2 s and 30 s (its calibration was fitted "
             "at lag 0: a lagged answer's raw confidence is the place's support, so its ECE is not meant to hold).",
             f"{PY} tools/bench_confidence.py --seeds 1 2 3 301 302 303 --frames 900 --lags 2 30 "
-            "--json-tag heldout-lags"),
+            "--json-tag heldout-lags",
+            quick=f"{PY} tools/bench_confidence.py --seeds 1 301 --frames 900 --lags 2 30 --json-tag heldout-lags",
+            sizes=CONFIDENCE_SIZES, modules=BASE + SYNTH + LIFT + TRACK, quick_min=20),
     Section("bench_confidence-fit", "Answers with a confidence: the calibration fit (tuning seeds)",
             "The isotonic fit of calibrated against raw confidence per tracker family and the operating points "
             "at which each egograph tracker's P and R reach every baseline's, on tuning seeds only.",
-            f"{PY} tools/bench_confidence.py --seeds 4 5 6 --frames 900 --fit --json-tag fit"),
+            f"{PY} tools/bench_confidence.py --seeds 4 5 6 --frames 900 --fit --json-tag fit",
+            sizes=(("quick", "tuning recordings 4-6 x 900 frames"), ("full", "tuning recordings 4-6 x 900 frames")),
+            modules=BASE + SYNTH + LIFT + TRACK, quick_min=20),
     Section("bench_causal-fixed-scale", "Causal tracking without the online noise-scale fit",
             "The same as above with the detection sigmas as configured (`graph.noise.online_auto=false`).",
             f"{PY} tools/bench_causal.py --seeds {HELD_OUT_12} --frames 3000 --no-latency "
-            "--set graph.noise.online_auto=false --json-tag fixed-scale"),
+            "--set graph.noise.online_auto=false --json-tag fixed-scale",
+            quick=f"{PY} tools/bench_causal.py --seeds {QUICK_HELD_OUT} --frames 1000 --no-latency "
+            "--set graph.noise.online_auto=false --json-tag fixed-scale",
+            sizes=HELD_OUT_12_SIZES, modules=SET_TRACKING, quick_min=3),
     Section("bench_causal-given-scale", "Causal tracking with each front-end's scale given",
             "The same with the scale the offline graph fits on each front-end on tuning seeds 1-12, given "
             "instead of fitted online.",
             f"{PY} tools/bench_causal.py --seeds {HELD_OUT_12} --frames 3000 --no-latency "
             "--set graph.noise.online_auto=false --set-svoe graph.noise.scale=2.75 --set-mvpe graph.noise.scale=0.58 "
-            "--json-tag given-scale"),
+            "--json-tag given-scale",
+            quick=f"{PY} tools/bench_causal.py --seeds {QUICK_HELD_OUT} --frames 1000 --no-latency "
+            "--set graph.noise.online_auto=false --set-svoe graph.noise.scale=2.75 --set-mvpe graph.noise.scale=0.58 "
+            "--json-tag given-scale",
+            sizes=HELD_OUT_12_SIZES, modules=SET_TRACKING, quick_min=3),
     Section("bench_frontend_trackers", "Trackers on `egograph detect`'s own detections",
             "`egograph detect` on four RGB benchmark recordings (seeds 21, 22, 25, 26; none used to choose a "
             "knob), then the paper's pipeline (memory + reference lifting) against the graph (robust lifting) "
             "and graph-causal on the same detections, beside the simulated front-end's sets and the SOT (CSRT) "
             "baseline; the share of true detections (on the instance: IoU >= 0.3 or the box centre inside its "
             "true box), the 2D table against `2d_bbox_annot/` and the ratios graph / paper.",
-            f"{PY} tools/bench_frontend_trackers.py --seeds 21 22 25 26 --frames 1000"),
+            f"{PY} tools/bench_frontend_trackers.py --seeds 21 22 25 26 --frames 1000",
+            quick=f"{PY} tools/bench_frontend_trackers.py --seeds 21 --frames 300",
+            sizes=FRONTEND_SIZES, modules=SET_TRACKING + FRONTEND, quick_min=10),
     Section("bench_frontend_trackers-frontend-mvpe", "The same with `--config frontend-mvpe`",
             "The graph with the stricter stands of the packaged config `frontend-mvpe` (what "
             "`egograph detect --enroll mvpe` prints), on the same detections.",
             f"{PY} tools/bench_frontend_trackers.py --seeds 21 22 25 26 --frames 1000 --config frontend-mvpe "
-            "--json-tag frontend-mvpe"),
+            "--json-tag frontend-mvpe",
+            quick=f"{PY} tools/bench_frontend_trackers.py --seeds 21 --frames 300 --config frontend-mvpe "
+            "--json-tag frontend-mvpe",
+            sizes=FRONTEND_SIZES, modules=SET_TRACKING + FRONTEND, quick_min=4, after=("bench_frontend_trackers",)),
     Section("bench_detect", "`egograph detect`: speed and detections",
             "Frames/s end to end, CPU ms/frame and ms per stage (read = waiting for the PNG decode, which runs in "
             "a background thread; proposals; crops; encoder; matching; write) with the embedded "
             "EfficientNet-lite0, the share of true detections on a synthetic recording, and the per-crop cost of "
             "a ViT-S/14-sized ONNX encoder (random weights, built by the benchmark), on a 60-frame `synth/tiny` "
             "recording with PV RGB.",
-            f"{PY} tools/bench_detect.py --runs mvpe:mean,svoe"),
+            f"{PY} tools/bench_detect.py --runs mvpe:mean,svoe",
+            quick=f"{PY} tools/bench_detect.py --runs mvpe:mean,svoe --frames 20",
+            sizes=(("quick", "one 20-frame synth/tiny recording with PV RGB"),
+                   ("full", "one 60-frame synth/tiny recording with PV RGB")),
+            modules=BASE + SYNTH + FRONTEND + STEPS, quick_min=6),
     Section("bench_graph_speed", "Graph solve time against recording length",
             "The offline graph solve (noise-scale fit included, negative evidence excluded) on the MVPE "
-            "observations of benchmark recordings 1-5 laid end to end, 8 instances, with both motion-break "
-            "factors (switchable CustomFactor, DCS), against the `kf` baseline in the same run.",
-            f"{PY} tools/bench_graph_speed.py --frames 1000 10000 50000"),
+            "observations of benchmark recordings (1-5 in the full tier) laid end to end, 8 instances, with both "
+            "motion-break factors (switchable CustomFactor, DCS), against the `kf` baseline in the same run.",
+            f"{PY} tools/bench_graph_speed.py --frames 1000 10000 50000",
+            quick=f"{PY} tools/bench_graph_speed.py --frames 1000 10000 --seeds {QUICK_HELD_OUT} --rec-frames 1000 "
+            "--repeat 1",
+            sizes=(("quick", "1000 and 10,000 frames from held-out recordings 301-302 (1000 frames each, the quick "
+                             "tier's), best of 1"),
+                   ("full", "1000, 10,000 and 50,000 frames from tuning recordings 1-5 (3000 frames each), best of 2")),
+            modules=BASE + SYNTH + LIFT + TRACK, quick_min=2),
     Section("bench_lift-svoe", "Lifting: SVOE",
             "3D error of the lifted true detections against `synth_gt/`, reference and robust lifting, with the "
             "reported and with the true poses (the lifting error alone), on 5 held-out recordings; lifting speed "
             "of both modes in the same run next to the floor of decoding the depth PNGs.",
             f"{PY} tools/bench_lift.py --frames 3000 --seeds {HELD_OUT_5} --cache .cache/bench --set svoe "
-            "--json-tag svoe"),
+            "--json-tag svoe",
+            quick=f"{PY} tools/bench_lift.py --frames 1000 --seeds {QUICK_HELD_OUT} --cache .cache/bench --set svoe "
+            "--json-tag svoe",
+            sizes=HELD_OUT_5_SIZES, modules=BASE + SYNTH + LIFT + STEPS, quick_min=3),
     Section("bench_lift-mvpe", "Lifting: MVPE", "The same for the MVPE detections.",
             f"{PY} tools/bench_lift.py --frames 3000 --seeds {HELD_OUT_5} --cache .cache/bench --set mvpe "
-            "--json-tag mvpe"),
+            "--json-tag mvpe",
+            quick=f"{PY} tools/bench_lift.py --frames 1000 --seeds {QUICK_HELD_OUT} --cache .cache/bench --set mvpe "
+            "--json-tag mvpe",
+            sizes=HELD_OUT_5_SIZES, modules=BASE + SYNTH + LIFT + STEPS, quick_min=3),
     Section("bench_regt", "Ground-truth re-estimation (`egograph regt`), reported poses",
             "Each annotated interval's centre re-estimated from its annotated boxes (robust lifting) on 5 held-out "
             "recordings, against the true centre; then the audit: a seeded 10 % of the given centres shifted by "
             "0.2 m in 20 independent draws, and the share of shifted and untouched centres it flags.",
-            f"{PY} tools/bench_regt.py --seeds {HELD_OUT_5}"),
+            f"{PY} tools/bench_regt.py --seeds {HELD_OUT_5}",
+            quick=f"{PY} tools/bench_regt.py --seeds {QUICK_HELD_OUT} --frames 1000",
+            sizes=HELD_OUT_5_SIZES, modules=SET_TRACKING, quick_min=3),
     Section("bench_regt-joint", "Ground-truth re-estimation with `--joint-poses`",
             "The same with the poses solved together with the annotated intervals' landmarks and the "
             "refinement factors (`regt --joint-poses`).",
-            f"{PY} tools/bench_regt.py --seeds {HELD_OUT_5} --joint-poses --json-tag joint"),
+            f"{PY} tools/bench_regt.py --seeds {HELD_OUT_5} --joint-poses --json-tag joint",
+            quick=f"{PY} tools/bench_regt.py --seeds {QUICK_HELD_OUT} --frames 1000 --joint-poses --json-tag joint",
+            sizes=HELD_OUT_5_SIZES, modules=SET_TRACKING + POSES, quick_min=4),
     Section("bench_refine-f3000-mesh", "Pose refinement of the held-out recordings (refined poses for bench_regt)",
             "The default sources (HoloLens model + mesh ICP) on the 5 held-out recordings; also writes the refined "
             "poses that `bench_regt-refined` reads.",
             f"{PY} tools/bench_refine.py --seeds {HELD_OUT_5} --frames 3000 --rows +mesh "
-            "--out-dir .cache/bench/refined/f3000 --json-tag f3000-mesh"),
+            "--out-dir .cache/bench/refined/f3000 --json-tag f3000-mesh",
+            quick=f"{PY} tools/bench_refine.py --seeds {QUICK_HELD_OUT} --frames 1000 --rows +mesh "
+            "--out-dir .cache/bench/refined/f1000 --json-tag f3000-mesh",
+            sizes=HELD_OUT_5_SIZES, modules=BASE + SYNTH + POSES + STEPS, quick_min=4),
     Section("bench_regt-refined", "Ground-truth re-estimation with refined poses",
             "The same re-estimation with the poses of `egograph refine` (run the section above first).",
             f"{PY} tools/bench_regt.py --seeds {HELD_OUT_5} "
-            "--poses .cache/bench/refined/f3000/seed{seed}/plus_mesh --json-tag refined"),
+            "--poses .cache/bench/refined/f3000/seed{seed}/plus_mesh --json-tag refined",
+            quick=f"{PY} tools/bench_regt.py --seeds {QUICK_HELD_OUT} --frames 1000 "
+            "--poses .cache/bench/refined/f1000/seed{seed}/plus_mesh --json-tag refined",
+            sizes=HELD_OUT_5_SIZES, modules=SET_TRACKING + POSES, quick_min=3, after=("bench_refine-f3000-mesh",)),
     Section("bench_joint", "Joint mode: poses and landmarks in one graph",
             "Per held-out recording and detection set, the offline graph tracker with four pose sources: "
             "reported, refined (`egograph refine`), joint (`--joint-poses`: the refinement factors plus the "
             "landmarks of the tracker's stands) and joint without the mesh ICP; ATE of the PV poses and the "
             "tracker's P/R at 0.25 m.",
-            f"{PY} tools/bench_joint.py --seeds {HELD_OUT_5}"),
+            f"{PY} tools/bench_joint.py --seeds {HELD_OUT_5}",
+            quick=f"{PY} tools/bench_joint.py --seeds {QUICK_HELD_OUT} --frames 1000",
+            sizes=HELD_OUT_5_SIZES, modules=SET_TRACKING + POSES, quick_min=6),
     Section("bench_joint-strong", "Joint mode under stronger pose error",
             "The same on 3 recordings generated with 3x the drift and 4x the relocalisation jumps.",
-            f"{PY} tools/bench_joint.py --seeds 301 302 303 {STRONG_POSE_ERROR} --json-tag strong"),
+            f"{PY} tools/bench_joint.py --seeds 301 302 303 {STRONG_POSE_ERROR} --json-tag strong",
+            quick=f"{PY} tools/bench_joint.py --seeds 301 --frames 1000 {STRONG_POSE_ERROR} --json-tag strong",
+            sizes=JOINT_SIZES, modules=SET_TRACKING + POSES, quick_min=5),
     Section("bench_joint-mild", "Joint mode under milder pose error",
             "The same with 2x the drift.",
-            f"{PY} tools/bench_joint.py --seeds 301 302 303 {MILD_POSE_ERROR} --json-tag mild"),
+            f"{PY} tools/bench_joint.py --seeds 301 302 303 {MILD_POSE_ERROR} --json-tag mild",
+            quick=f"{PY} tools/bench_joint.py --seeds 301 --frames 1000 {MILD_POSE_ERROR} --json-tag mild",
+            sizes=JOINT_SIZES, modules=SET_TRACKING + POSES, quick_min=5),
     Section("bench_refine-heldout", "Pose refinement on held-out recordings",
             "The default `egograph refine` (mesh ICP + self-check + covariance) on recordings whose seeds were "
             "never used while tuning (301-308 at 3000 frames, 101-104 at 1000, 201-210 at 150-600), each also "
             "with its true poses as the reported ones: ATE ratio, whether the self-check's verdict agrees with "
             "the truth, NEES of the written covariance, time per frame.",
-            f"{PY} tools/bench_refine.py --heldout --sets 3000 1000 150 300 450 600 --json-tag heldout"),
+            f"{PY} tools/bench_refine.py --heldout --sets 3000 1000 150 300 450 600 --json-tag heldout",
+            quick=f"{PY} tools/bench_refine.py --heldout --sets 150 300 --json-tag heldout",
+            sizes=(("quick", "the held-out sets of 150 and 300 frames (5 recordings)"),
+                   ("full", "every held-out set: 8 x 3000, 4 x 1000, 10 x 150-600 frames")),
+            modules=BASE + SYNTH + POSES + STEPS, quick_min=5),
     Section("bench_refine-sources", "Pose refinement per source (one RGB recording)",
             "Each source of the pose graph (HoloLens model, KISS-ICP, mesh ICP, COLMAP) alone and combined, on "
             "one 300-frame RGB recording, the self-check off (it keeps the input where there are no mesh "
             "keyframes).",
             f"{PY} tools/bench_refine.py --seeds 1 --frames 300 --rgb --rows hololens +kiss +mesh +colmap "
-            "mesh+colmap all --set selfcheck=false --json-tag sources"),
+            "mesh+colmap all --set selfcheck=false --json-tag sources",
+            quick=f"{PY} tools/bench_refine.py --seeds 1 --frames 150 --rgb --rows hololens +kiss +mesh +colmap "
+            "mesh+colmap all --set selfcheck=false --json-tag sources",
+            sizes=RGB_SIZES, modules=BASE + SYNTH + POSES + STEPS, quick_min=6),
     Section("bench_refine-colmap-fixed", "COLMAP factors with fixed sigmas",
             "The COLMAP rows with the fixed 0.3 deg / 1 cm sigmas instead of the bundle adjustment's covariance "
             "(`refine.colmap_covariance=false`), on the same recording.",
             f"{PY} tools/bench_refine.py --seeds 1 --frames 300 --rgb --rows +mesh +colmap mesh+colmap "
-            "--set selfcheck=false --set colmap_covariance=false --json-tag colmap-fixed"),
+            "--set selfcheck=false --set colmap_covariance=false --json-tag colmap-fixed",
+            quick=f"{PY} tools/bench_refine.py --seeds 1 --frames 150 --rgb --rows +mesh +colmap mesh+colmap "
+            "--set selfcheck=false --set colmap_covariance=false --json-tag colmap-fixed",
+            sizes=RGB_SIZES, modules=BASE + SYNTH + POSES + STEPS, quick_min=3),
     Section("bench_refine-colmap-every-frame", "COLMAP with every frame a keyframe",
             "The COLMAP source alone with every frame of the same recording a keyframe "
             "(`refine.colmap_stride=1`): what the bundle adjustment adds at its densest, and what it costs.",
             f"{PY} tools/bench_refine.py --seeds 1 --frames 300 --rgb --rows +colmap --set selfcheck=false "
-            "--set colmap_stride=1 --json-tag colmap-every-frame"),
+            "--set colmap_stride=1 --json-tag colmap-every-frame",
+            quick=f"{PY} tools/bench_refine.py --seeds 1 --frames 150 --rgb --rows +colmap --set selfcheck=false "
+            "--set colmap_stride=1 --json-tag colmap-every-frame",
+            sizes=RGB_SIZES, modules=BASE + SYNTH + POSES + STEPS, quick_min=4),
     Section("bench_run", "`egograph run` on Dask: 2 workers against 1, and a kill",
-            "4 synthetic sequences x 3000 frames, stages lift, track, eval, trackers memory, kf, graph, once with "
-            "one local worker and once with two; then a 2-worker run killed with SIGKILL (scheduler, nanny and "
-            "workers) half way and started again.",
-            f"{PY} tools/bench_run.py --sequences 4 --frames 3000 --kill-after 0.5"),
+            "Synthetic sequences with PV RGB through every stage a dataset run has (`egograph detect`'s front-end, "
+            "lift, track with memory, kf and graph, eval), once with one local worker and once with two: wall "
+            "time, throughput, CPU per stage per frame, peak memory per worker process, bytes written per frame; "
+            "then a 2-worker run killed with SIGKILL (scheduler, nanny and workers) half way and started again "
+            "(what it did again, and whether its summary equals the uninterrupted run's); and the projection of "
+            "50 recordings x 10,000 frames on 16 workers from the measured per-stage costs.",
+            f"{PY} tools/bench_run.py --sequences 8 --frames 3000 --stages detect,lift,track,eval --kill-after 0.5",
+            quick=f"{PY} tools/bench_run.py --sequences 2 --frames 150 --stages detect,lift,track,eval "
+            "--kill-after 0.5",
+            sizes=(("quick", "2 sequences x 150 frames with PV RGB, stages detect, lift, track, eval"),
+                   ("full", "8 sequences x 3000 frames with PV RGB, stages detect, lift, track, eval")),
+            modules=SET_TRACKING + FRONTEND + ("egograph/cli",), quick_min=12),
     Section("bench_synth", "Synthetic generator and reader speed",
             "Frames per CPU-second of the generator on one core without RGB and with RGB (OpenGL rasteriser "
             "and the ray-cast reference renderer), the PV colour stage alone, and reading poses + depth.",
-            f"LP_NUM_THREADS=1 taskset -c 0 {PY} tools/bench_synth.py --frames 600 --rgb-frames 200"),
+            f"LP_NUM_THREADS=1 taskset -c 0 {PY} tools/bench_synth.py --frames 600 --rgb-frames 200",
+            quick=f"LP_NUM_THREADS=1 taskset -c 0 {PY} tools/bench_synth.py --frames 150 --rgb-frames 50",
+            sizes=(("quick", "150 frames depth only, 50 with RGB"), ("full", "600 frames depth only, 200 with RGB")),
+            modules=BASE + SYNTH, quick_min=6),
 )
+
+
+# --------------------------------------------------------------------------- staleness
+
+DIGEST_SUFFIXES = (".py", ".yaml", ".yml", ".json", ".txt")
+
+
+def modules_digest(paths: tuple[str, ...] | list[str], repo: Path = REPO) -> str:
+    """sha256 (16 hex digits) of the files under ``paths`` (folders or files, relative to ``repo``):
+    each file's relative path and bytes, in sorted order; a path that does not exist counts as such.
+    The same code gives the same digest in every clone."""
+    h = hashlib.sha256()
+    for rel in paths:
+        p = repo / rel
+        if p.is_dir():
+            files = sorted(f for f in p.rglob("*") if f.is_file() and f.suffix in DIGEST_SUFFIXES
+                           and "__pycache__" not in f.parts)
+        else:
+            files = [p] if p.is_file() else []
+        if not files:
+            h.update(f"missing {rel}\0".encode())
+        for f in files:
+            h.update(f.relative_to(repo).as_posix().encode() + b"\0" + f.read_bytes() + b"\0")
+    return h.hexdigest()[:16]
+
+
+def regeneration_of(doc: dict) -> dict:
+    """The record's regeneration block (tier, sizes, modules and their digest), {} for a record made by
+    running a tool by hand."""
+    reg = doc.get("regeneration")
+    return reg if isinstance(reg, dict) else {}
+
+
+def modules_changed(section: Section, doc: dict, repo: Path = REPO) -> bool | None:
+    """Whether the code ``section`` exercises changed since ``doc`` was made (None: the record keeps no
+    digest)."""
+    reg = regeneration_of(doc)
+    if not reg.get("modules_digest"):
+        return None
+    return reg["modules_digest"] != modules_digest(section.paths(), repo)
+
+
+def is_current(section: Section, doc: dict | None, tier: str, repo: Path = REPO) -> bool:
+    """A record that a regeneration of ``tier`` keeps: made by a regeneration of this tier or a larger
+    one, on the same code of every module the section exercises."""
+    if doc is None:
+        return False
+    reg = regeneration_of(doc)
+    if reg.get("tier") not in TIERS or TIERS.index(reg["tier"]) < TIERS.index(tier):
+        return False
+    return modules_changed(section, doc, repo) is False
+
+
+def stamp(path: Path, section: Section, tier: str, command: str) -> dict:
+    """Add the regeneration block to the record a section's benchmark just wrote."""
+    from egograph.io.atomic import atomic_write_text
+
+    doc = json.loads(path.read_text())
+    doc["regeneration"] = {"tier": tier, "sizes": section.size(tier), "section_command": command,
+                           "modules": list(section.paths()), "modules_digest": modules_digest(section.paths())}
+    atomic_write_text(path, benchdoc.dumps(doc) + "\n")
+    return doc
+
+
+# --------------------------------------------------------------------------- regeneration
+
+
+def run_command(command: str, cwd: str, env: dict, log: str) -> tuple[int, float, float]:
+    """Run one section's shell command (its output to ``log``) -> exit code, wall s, CPU s of the
+    children. Module level so that a Dask worker can run it."""
+    Path(log).parent.mkdir(parents=True, exist_ok=True)
+    t0, c0 = time.perf_counter(), os.times()
+    with open(log, "w") as fh:
+        fh.write(f"$ {command}\n")
+        fh.flush()
+        rc = subprocess.run(["bash", "-c", command], cwd=cwd, env=env, stdout=fh, stderr=subprocess.STDOUT).returncode
+    c1 = os.times()
+    cpu = (c1.children_user - c0.children_user) + (c1.children_system - c0.children_system)
+    return rc, time.perf_counter() - t0, cpu
+
+
+def select(only: list[str] | None, sections: tuple[Section, ...] = SECTIONS) -> list[Section]:
+    """The sections named by ``--only`` (stems or headings; every section without), cheap first, each
+    after the sections it reads. An unknown name is an error listing the known ones."""
+    by = {s.stem: s for s in sections}
+    chosen = list(sections)
+    if only:
+        heads = {s.heading: s.stem for s in sections}
+        bad = [n for n in only if n not in by and n not in heads]
+        if bad:
+            raise SystemExit(f"--only: unknown section {', '.join(bad)}; the sections: {', '.join(by)}")
+        names = {heads.get(n, n) for n in only}
+        chosen = [s for s in sections if s.stem in names]
+    every = {s.stem: s for s in sections}
+
+    def rank(s: Section) -> tuple[float, int]:   # after every section it reads, however cheap it is
+        return max([(s.quick_min, 0)] + [(rank(every[a])[0], rank(every[a])[1] + 1) for a in s.after])
+
+    return sorted(chosen, key=rank)
+
+
+def _regen_path(bench_dir: Path, tier: str) -> Path:
+    return bench_dir / REGEN_DIR_NAME / f"{tier}.json"
+
+
+def load_regenerations(bench_dir: Path) -> dict[str, dict]:
+    """The regeneration logs (tier -> log) under ``bench_dir/regeneration``."""
+    out = {}
+    for tier in TIERS:
+        p = _regen_path(bench_dir, tier)
+        if p.is_file():
+            out[tier] = json.loads(p.read_text())
+    return out
+
+
+def regenerate(tier: str, only: list[str] | None, workers: int, scheduler: str | None, bench_dir: Path,
+               out: Path, force: bool = False, sections: tuple[Section, ...] = SECTIONS) -> int:
+    """Run every chosen section's benchmark for ``tier`` (cheap first; sections whose record is current
+    for the tier and the code are skipped, so a killed regeneration resumes), stamp each record with
+    its tier and module digest, log the run in ``docs/bench/regeneration/<tier>.json`` and re-render the
+    page after each section. With ``scheduler`` every section runs as a task on that Dask cluster (the
+    repository at the same path on every worker), as many at once as it has worker threads; else
+    ``workers`` at once on this machine. Exit 0 when every chosen section has a current record."""
+    from egograph.io.atomic import atomic_write_text
+
+    chosen = select(only, sections)
+    docs = load(bench_dir)
+    todo = [s for s in chosen if force or not is_current(s, docs.get(s.stem), tier)]
+    for s in chosen:
+        if s not in todo:
+            print(f"[{s.stem}] current for the {tier} tier and the code: kept", flush=True)
+    client = None
+    if scheduler:
+        from distributed import Client
+
+        client = Client(scheduler, timeout="30s")
+        slots = max(1, sum(client.nthreads().values()))
+    else:
+        slots = max(1, workers)
+    env = {**os.environ, "PYTHONPATH": os.pathsep.join(p for p in (str(REPO), os.environ.get("PYTHONPATH")) if p)}
+    regen_file = _regen_path(bench_dir, tier)
+    log = json.loads(regen_file.read_text()) if regen_file.is_file() else None
+    if log is None or log.get("complete"):   # a new regeneration; else this invocation resumes the last one
+        log = {"format": REGEN_FORMAT, "tier": tier, "complete": False, "invocations": []}
+    inv = {"started": _dt.datetime.now(_dt.timezone.utc).replace(microsecond=0).isoformat(),
+           "argv": sys.argv[1:], "commit": benchdoc.revision().get("commit"), "slots": slots,
+           "scheduler": bool(scheduler), "load_average": {"start": [round(x, 2) for x in os.getloadavg()]},
+           "sections": {}}
+    log["invocations"].append(inv)
+    lock = threading.Lock()
+    t_start = time.perf_counter()
+
+    def save() -> None:
+        inv["wall_s"] = round(time.perf_counter() - t_start, 1)
+        inv["load_average"]["end"] = [round(x, 2) for x in os.getloadavg()]
+        regen_file.parent.mkdir(parents=True, exist_ok=True)
+        atomic_write_text(regen_file, benchdoc.dumps(log) + "\n")
+
+    def one(s: Section) -> tuple[Section, int]:
+        command = s.command_for(tier)
+        path = bench_dir / f"{s.stem}.json"
+        before = path.stat().st_mtime_ns if path.is_file() else None
+        logfile = str(LOG_DIR / f"{s.stem}.log")
+        print(f"[{s.stem}] {command}  (log {logfile})", flush=True)
+        if client is not None:
+            rc, wall, cpu = client.submit(run_command, command, str(REPO), env, logfile, pure=False).result()
+        else:
+            rc, wall, cpu = run_command(command, str(REPO), env, logfile)
+        written = path.is_file() and path.stat().st_mtime_ns != before
+        if rc == 0 and not written:
+            rc = -1
+            print(f"[{s.stem}] exited 0 but wrote no {path}", flush=True)
+        with lock:
+            if rc == 0:
+                stamp(path, s, tier, command)
+                if tier == "full" and s.stem in README_RECORDS and bench_dir.resolve() == BENCH_DIR.resolve():
+                    from egograph.io.atomic import atomic_write_text
+
+                    (bench_dir / README_DIR_NAME).mkdir(exist_ok=True)
+                    atomic_write_text(bench_dir / README_DIR_NAME / path.name, path.read_text())
+            inv["sections"][s.stem] = {"status": "ok" if rc == 0 else "failed", "exit": rc,
+                                       "wall_s": round(wall, 1), "cpu_s": round(cpu, 1)}
+            save()
+            render_files(bench_dir, out, sections)
+        print(f"[{s.stem}] {'done' if rc == 0 else f'FAILED (exit {rc}; see {logfile})'} in {wall / 60:.1f} min",
+              flush=True)
+        return s, rc
+
+    save()
+    pending, failed, running = list(todo), set(), {}
+    try:
+        with ThreadPoolExecutor(slots) as pool:
+            while pending or running:
+                busy = {s.stem for s in running.values()} | {s.stem for s in pending}
+                for s in list(pending):
+                    if len(running) >= slots:
+                        break
+                    if any(d in failed for d in s.after):
+                        pending.remove(s)
+                        failed.add(s.stem)
+                        inv["sections"][s.stem] = {"status": "skipped", "exit": None, "wall_s": 0.0,
+                                                   "cpu_s": None, "reason": "needs " + ", ".join(s.after)}
+                        print(f"[{s.stem}] skipped: it reads {', '.join(s.after)}, which failed", flush=True)
+                    elif not any(d in busy for d in s.after):
+                        pending.remove(s)
+                        running[pool.submit(one, s)] = s
+                if not running:
+                    continue
+                finished, _ = wait(list(running), timeout=60, return_when=FIRST_COMPLETED)
+                with lock:   # the wall time so far, should this invocation be killed
+                    save()
+                for f in finished:
+                    s, rc = f.result()
+                    del running[f]
+                    if rc != 0:
+                        failed.add(s.stem)
+    finally:
+        if client is not None:
+            client.close()
+    docs = load(bench_dir)
+    log["complete"] = only is None and all(is_current(s, docs.get(s.stem), tier) for s in sections)
+    save()
+    render_files(bench_dir, out, sections)
+    print(f"regeneration ({tier} tier): {len(todo) - len(failed)} of {len(todo)} sections run, "
+          f"{len(chosen) - len(todo)} kept, {len(failed)} failed; {inv['wall_s'] / 60:.1f} min", flush=True)
+    return 1 if failed else 0
 
 
 # --------------------------------------------------------------------------- rendering
@@ -280,8 +660,55 @@ def render_record(doc: dict) -> list[str]:
     return out
 
 
-def render(docs: dict[str, dict], sections: tuple[Section, ...] = SECTIONS) -> str:
-    """docs/benchmarks.md from the records ``docs`` (stem -> JSON)."""
+def tier_line(section: Section, doc: dict, repo: Path = REPO) -> str:
+    """The section's tier, sizes, commit and whether the code it exercises changed since."""
+    reg = regeneration_of(doc)
+    commit = (doc.get("egograph") or {}).get("commit")
+    at = f"`{commit[:10]}`" if commit else "no commit"
+    if not reg:
+        return (f"- tier: none (run by hand, not by `tools/bench_report.py --regenerate`), at {at}; whether its code "
+                "changed since is not known (the record keeps no module digest)")
+    changed = modules_changed(section, doc, repo)
+    mods = ", ".join(f"`{m}`" for m in section.paths())
+    state = ("**changed since**: re-run `tools/bench_report.py --regenerate --only " + section.stem + "`"
+             if changed else "unchanged since")
+    sizes = reg.get("sizes") or "sizes not stated"
+    return f"- tier: {reg.get('tier')} ({sizes}), at {at}; code exercised ({mods}): {state}"
+
+
+def regeneration_header(regens: dict[str, dict]) -> list[str]:
+    """One paragraph per tier's last regeneration: its wall time on this machine, invocations (a killed
+    one resumed), sections run and failed, load."""
+    out = []
+    for tier, log in regens.items():
+        invs = log.get("invocations") or []
+        if not invs:
+            continue
+        wall = sum(i.get("wall_s") or 0 for i in invs)
+        ran = {k: v for i in invs for k, v in (i.get("sections") or {}).items()}
+        ok = sum(v["status"] == "ok" for v in ran.values())
+        bad = sorted(k for k, v in ran.items() if v["status"] != "ok")
+        loads = [x for i in invs for x in ((i.get("load_average") or {}).get("start", [None])[0],
+                                           (i.get("load_average") or {}).get("end", [None])[0]) if x is not None]
+        slots = sorted({i.get("slots") for i in invs})
+        text = (f"**Last {tier}-tier regeneration** (`tools/bench_report.py --regenerate --tier {tier}`, started "
+                f"{invs[0].get('started')}, at `{str(invs[-1].get('commit'))[:10]}`): wall time "
+                f"{_duration(wall)} on this machine in {len(invs)} invocation{'s' if len(invs) > 1 else ''}"
+                f"{' (killed or stopped, then resumed)' if len(invs) > 1 else ''}, "
+                f"{' / '.join(map(str, slots))} section{'s' if slots != [1] else ''} at a time; {ok} sections run")
+        if bad:
+            text += f", {len(bad)} failed ({', '.join(bad)})"
+        if loads:
+            text += f"; load average {min(loads):.1f}-{max(loads):.1f} (2 CPUs shared with other work)"
+        text += "." if log.get("complete") else "; not complete: the sections without a current record are below."
+        out += [text, ""]
+    return out
+
+
+def render(docs: dict[str, dict], sections: tuple[Section, ...] = SECTIONS, regens: dict[str, dict] | None = None,
+           repo: Path = REPO) -> str:
+    """docs/benchmarks.md from the records ``docs`` (stem -> JSON) and the regeneration logs ``regens``;
+    whether a section's code changed since its record is read from the checkout ``repo``."""
     known = {s.stem for s in sections}
     missing = [s for s in sections if s.stem not in docs]
     out = ["# Benchmarks", "",
@@ -291,29 +718,41 @@ def render(docs: dict[str, dict], sections: tuple[Section, ...] = SECTIONS) -> s
            "prints its tables and writes them, with its command line, revision, machine and wall time, to "
            "`docs/bench/<tool>[-<tag>].json` (`--json PATH` elsewhere, `--json -` not at all); "
            "`.venv/bin/python tools/bench_report.py` renders this page from those files and `--check` "
-           "says whether it is current. The synthetic recordings are generated into `.cache/` on first use.",
-           "", "To regenerate a section, run its command from the repository root, then the report "
-           "(`tools/bench_report.py --commands` prints them all as a script, `--missing` only the sections not "
-           "recorded yet):", "", "```bash"]
+           "says whether it is current. The synthetic recordings are generated into `.cache/` on first use.", "",
+           "`.venv/bin/python tools/bench_report.py --regenerate [--tier quick|full] [--only SECTION ...] "
+           "[--scheduler ADDR | --workers N]` runs every section's benchmark, cheap sections first, and re-renders "
+           "this page after each: the quick tier on fewer or shorter recordings of the same held-out seeds (its "
+           "sizes are stated in each section), the full tier at the sizes below, each section a task on the Dask "
+           "cluster at ADDR when one is given. A section whose record is current for the tier and the code (the "
+           "digest of the modules it exercises, kept in the record) is not run again, so a killed regeneration "
+           "resumes where it stopped. Each section states its tier, the commit its record was made at and "
+           "whether that code changed since.", ""]
+    out += regeneration_header(regens or {})
+    out += ["The full tier's commands, from the repository root (`tools/bench_report.py --commands` prints them "
+            "as a script, `--missing` only the sections not recorded yet; `--commands --tier quick` the quick "
+            "tier's):", "", "```bash"]
     out += [s.command for s in sections]
     out += ["```", ""]
     out += [f"Recorded: {len(sections) - len(missing)} of {len(sections)} sections.", "",
-            "| section | recorded |", "|---|---|"]
+            "| section | tier | recorded | code exercised since |", "|---|---|---|---|"]
     for s in sections:
         d = docs.get(s.stem)
-        when = "not yet regenerated"
+        tier, when, since = "-", "not yet regenerated", "-"
         if d is not None:
             commit = (d.get("egograph") or {}).get("commit")
             when = f"{str(d.get('started'))[:10]}, `{commit[:10] if commit else 'no commit'}`"
-        out.append(f"| [{s.heading}](#{anchor(s.heading)}) | {when} |")
+            tier = regeneration_of(d).get("tier") or "by hand"
+            changed = modules_changed(s, d, repo)
+            since = "not known" if changed is None else "**changed**" if changed else "unchanged"
+        out.append(f"| [{s.heading}](#{anchor(s.heading)}) | {tier} | {when} | {since} |")
     out.append("")
     for s in sections:
         out += [f"## {s.heading}", "", s.about, ""]
         if s.stem in docs:
-            out += render_record(docs[s.stem])
+            out += [tier_line(s, docs[s.stem], repo), *render_record(docs[s.stem])]
         else:
-            out += [f"Not yet regenerated: run `{s.command}` (writes `docs/bench/{s.stem}.json`), then "
-                    "`.venv/bin/python tools/bench_report.py`."]
+            out += [f"Not yet regenerated: run `{PY} tools/bench_report.py --regenerate --only {s.stem}` "
+                    f"(quick tier: `{s.quick}`; full tier: `{s.command}`; writes `docs/bench/{s.stem}.json`)."]
         out.append("")
     extra = [k for k in docs if k not in known]
     if extra:
@@ -323,16 +762,31 @@ def render(docs: dict[str, dict], sections: tuple[Section, ...] = SECTIONS) -> s
     return "\n".join(out).rstrip("\n") + "\n"
 
 
+def render_files(bench_dir: Path, out: Path, sections: tuple[Section, ...] = SECTIONS) -> None:
+    """Write the page and the README's score block from the records in ``bench_dir``."""
+    from egograph.io.atomic import atomic_write_text
+
+    docs = load(bench_dir)
+    out.parent.mkdir(parents=True, exist_ok=True)
+    atomic_write_text(out, render(docs, sections, regens=load_regenerations(bench_dir)))
+    if bench_dir.resolve() == BENCH_DIR.resolve() and README.is_file():
+        old = README.read_text()
+        new = with_readme_scores(old, readme_docs(bench_dir, docs))
+        if new != old:
+            atomic_write_text(README, new)
+
+
 def anchor(heading: str) -> str:
     """GitHub's anchor of a heading: lower case, punctuation dropped, spaces to hyphens."""
     keep = "".join(c for c in heading.lower() if c.isalnum() or c in " -_")
     return keep.replace(" ", "-")
 
 
-def commands(docs: dict[str, dict], only_missing: bool) -> str:
+def commands(docs: dict[str, dict], only_missing: bool, tier: str = "full") -> str:
     lines = ["#!/usr/bin/env bash", "# The benchmarks of docs/benchmarks.md (tools/bench_report.py --commands"
-             + (" --missing" if only_missing else "") + "); run from the repository root.", "set -euo pipefail"]
-    lines += [s.command for s in SECTIONS if not (only_missing and s.stem in docs)]
+             + (" --missing" if only_missing else "") + f" --tier {tier}); run from the repository root.",
+             "set -euo pipefail"]
+    lines += [s.command_for(tier) for s in SECTIONS if not (only_missing and s.stem in docs)]
     lines.append(f"{PY} tools/bench_report.py")
     return "\n".join(lines) + "\n"
 
@@ -344,6 +798,25 @@ README_END = "<!-- scores: end -->"
 
 def _table(doc: dict, title: str) -> dict:
     return next(it for it in doc["items"] if it["type"] == "table" and it["title"].startswith(title))
+
+
+README_RECORDS = ("bench_trackers-heldout-robust", "bench_causal-heldout6")
+"""The records the README's score tables are rendered from. The README quotes them at the sizes the
+docs state (12 and 6 held-out recordings x 3000 frames), so it reads its own copies in
+``docs/bench/readme/``: a full-tier regeneration of these sections refreshes them; a quick-tier one
+changes only docs/benchmarks.md."""
+
+README_DIR_NAME = "readme"
+
+
+def readme_docs(bench_dir: Path, docs: dict[str, dict]) -> dict[str, dict]:
+    """The README's records: the copies in ``bench_dir/readme/``, else the page's."""
+    out = dict(docs)
+    for stem in README_RECORDS:
+        p = bench_dir / README_DIR_NAME / f"{stem}.json"
+        if p.is_file():
+            out[stem] = json.loads(p.read_text())
+    return out
 
 
 def readme_scores(docs: dict[str, dict]) -> str | None:
@@ -370,6 +843,12 @@ def readme_scores(docs: dict[str, dict]) -> str | None:
         by = {r[1]: r for r in lag["rows"] if r[0] == det_set}
         lines.append(f"| {det_set.upper()} P / R @0.25, L2 (m) | "
                      + " | ".join(f"{by[n][2]:.1f} / {by[n][3]:.1f}, {by[n][4]:.2f}" for n in names) + " |")
+    made = []
+    for doc in (tr, ca):
+        reg, commit = regeneration_of(doc), (doc.get("egograph") or {}).get("commit") or "no commit"
+        made.append(f"`{doc['tool']}` {reg.get('tier', 'by hand')} tier at `{commit[:10]}`" if reg
+                    else f"`{doc['tool']}` by hand at `{commit[:10]}`")
+    lines += ["", "Records: " + "; ".join(made) + " (docs/bench/readme/)."]
     return "\n".join(lines)
 
 
@@ -391,14 +870,33 @@ def main(argv: list[str] | None = None) -> int:
                                                          "from what the records render")
     ap.add_argument("--commands", action="store_true", help="print every section's command as a shell script")
     ap.add_argument("--missing", action="store_true", help="with --commands: only sections without a record")
+    g = ap.add_argument_group("regeneration")
+    g.add_argument("--regenerate", action="store_true",
+                   help="run the sections' benchmarks (cheap first; a section whose record is current for the tier "
+                        "and the code is kept, so a killed regeneration resumes), then render")
+    g.add_argument("--tier", choices=TIERS, default="quick",
+                   help="quick: fewer or shorter recordings of the same held-out seeds, every section in about an "
+                        "hour on 2 cores; full: the sizes the docs quote (default quick)")
+    g.add_argument("--only", nargs="+", metavar="SECTION", help="only these sections (record stems such as "
+                                                                "bench_graph_speed, or headings)")
+    where = g.add_mutually_exclusive_group()
+    where.add_argument("--workers", type=int, default=1, metavar="N",
+                       help="run N sections at once on this machine (default 1)")
+    where.add_argument("--scheduler", metavar="ADDR", help="run each section as a task on the Dask cluster at ADDR "
+                                                           "(the repository at the same path on every worker)")
+    g.add_argument("--force", action="store_true", help="run the chosen sections even when their record is current")
     args = ap.parse_args(argv)
+    if args.regenerate:
+        if args.check or args.commands:
+            ap.error("--regenerate writes records: not with --check or --commands")
+        return regenerate(args.tier, args.only, args.workers, args.scheduler, args.bench_dir, args.out, args.force)
     docs = load(args.bench_dir)
     if args.commands:
-        sys.stdout.write(commands(docs, args.missing))
+        sys.stdout.write(commands(docs, args.missing, args.tier if "--tier" in (argv or sys.argv) else "full"))
         return 0
-    text = render(docs)
+    text = render(docs, regens=load_regenerations(args.bench_dir))
     readme_old = README.read_text() if README.is_file() else ""
-    readme_new = with_readme_scores(readme_old, docs)
+    readme_new = with_readme_scores(readme_old, readme_docs(args.bench_dir, docs))
     if args.check:
         old = args.out.read_text() if args.out.is_file() else ""
         if readme_old != readme_new:

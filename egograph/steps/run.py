@@ -366,7 +366,18 @@ def run_task(spec: dict, *deps: dict) -> dict:
     return {"key": key, "status": status, "error": error, "reused": status == OK and before is not None and before == after,
             "warnings": lines[:5] + ([f"... {len(lines) - 5} more"] if len(lines) > 5 else []),
             "seconds": round(time.perf_counter() - t0, 3),
-            "cpu_seconds": round(time.process_time() - c0, 3)}  # the worker process's, every thread
+            "cpu_seconds": round(time.process_time() - c0, 3),  # the worker process's, every thread
+            "worker_pid": os.getpid(), "worker_max_rss_mb": _max_rss_mb()}  # its peak resident memory so far
+
+
+def _max_rss_mb() -> float | None:
+    """The peak resident memory of this process so far (MB; Linux reports kB), None where unknown."""
+    try:
+        import resource
+
+        return round(resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024, 1)
+    except (ImportError, OSError):  # pragma: no cover - not POSIX
+        return None
 
 
 def _signature(path: str) -> tuple | None:

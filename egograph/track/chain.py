@@ -22,7 +22,7 @@ from egograph.track.detection_factor import add_detection_factors
 from egograph.track.switchable import (
     dcs_between,
     dcs_phi,
-    dcs_switch_value,
+    dcs_switch_values,
     switch_clipped,
     switch_prior,
     switchable_between,
@@ -47,11 +47,21 @@ def chunk_index(t_s: np.ndarray, chunk_s: float) -> np.ndarray:
 
 
 def _chunk_medians(world: np.ndarray, chunk: np.ndarray, n: int) -> np.ndarray:
+    """(n, 3) per-coordinate median of each chunk's rows (chunks 0..n-1, none empty): one sort per
+    coordinate for every chunk at once, the same bits as ``np.median`` per chunk (an even count
+    takes the mean of the two middle values)."""
+    world = np.asarray(world, float)
+    counts = np.bincount(chunk, minlength=n)
+    if not np.isfinite(world).all() or (counts == 0).any():  # np.median's NaN rule, and no empty chunk
+        order = np.argsort(chunk, kind="stable")
+        bounds = np.searchsorted(chunk[order], np.arange(n + 1))
+        return np.array([np.median(world[order[bounds[k]:bounds[k + 1]]], axis=0) for k in range(n)]).reshape(n, 3)
+    start = np.cumsum(counts) - counts
+    lo, hi = start + (counts - 1) // 2, start + counts // 2
     out = np.empty((n, 3))
-    order = np.argsort(chunk, kind="stable")
-    bounds = np.searchsorted(chunk[order], np.arange(n + 1))
-    for k in range(n):
-        out[k] = np.median(world[order[bounds[k]:bounds[k + 1]]], axis=0)
+    for j in range(3):
+        s = world[np.lexsort((world[:, j], chunk)), j]   # by chunk, then by value
+        out[:, j] = np.where(counts % 2 == 1, s[hi], (s[lo] + s[hi]) / 2)
     return out
 
 
@@ -100,8 +110,7 @@ def _switch_values(result: gtsam.Values | None, landmarks: np.ndarray, cfg: Grap
     n = len(landmarks)
     if cfg.switches == "switchable":
         return np.array([switch_clipped(result, S(k)) for k in range(1, n)])
-    phi = dcs_phi(cfg.switch_sigma)
-    return np.array([dcs_switch_value(landmarks[k - 1], landmarks[k], cfg.still_sigma_m, phi) for k in range(1, n)])
+    return dcs_switch_values(landmarks, cfg.still_sigma_m, dcs_phi(cfg.switch_sigma)).reshape(max(n - 1, 0))
 
 
 def _landmarks_of(result: gtsam.Values, n: int) -> np.ndarray:

@@ -66,15 +66,40 @@ def robust(base: gtsam.noiseModel.Base, kernel: str, width: float) -> gtsam.nois
     return base if estimator is None else gtsam.noiseModel.Robust.Create(estimator, base)
 
 
+NOISE_MODEL_CACHE_SIZE = 200_000
+"""Detection noise models kept for reuse (:func:`detection_noise_model`); beyond this many the cache
+starts again (about 1 kB each)."""
+
+_noise_models: dict[tuple, gtsam.noiseModel.Base] = {}
+
+
+def detection_noise_model(cov: np.ndarray, kernel: str, width: float) -> gtsam.noiseModel.Base:
+    """The robust Gaussian noise model of one detection covariance ``cov`` (3, 3) m^2, made once per
+    covariance and kernel: an offline solve builds the factor of every detection again for each
+    window of the chain, each segment and place it falls in and each alias and noise-scale round,
+    and making the model (a Cholesky factor in GTSAM) cost more than the rest of the factor. The
+    same covariance bytes give the same model, so every solve is the same, bit for bit. GTSAM's
+    noise models are immutable and shared by the factors that hold them."""
+    key = (np.ascontiguousarray(cov, dtype=float).tobytes(), kernel, width)
+    model = _noise_models.get(key)
+    if model is None:
+        if len(_noise_models) >= NOISE_MODEL_CACHE_SIZE:
+            _noise_models.clear()
+        base = gtsam.noiseModel.Gaussian.Covariance(cov)
+        estimator = m_estimator(kernel, width)
+        model = base if estimator is None else gtsam.noiseModel.Robust.Create(estimator, base)
+        _noise_models[key] = model
+    return model
+
+
 def add_detection_factors(graph: gtsam.NonlinearFactorGraph, keys: np.ndarray, world: np.ndarray,
                           covariances: np.ndarray, cfg: DetectionNoiseConfig) -> None:
     """One robust ``PriorFactorPoint3`` per row: landmark ``keys[j]`` observed at ``world[j]``."""
-    # One m-estimator for every row (GTSAM shares it read-only): this loop runs per detection per solve.
-    estimator = m_estimator(cfg.kernel, cfg.kernel_width)
-    gaussian, wrap, prior = gtsam.noiseModel.Gaussian.Covariance, gtsam.noiseModel.Robust.Create, gtsam.PriorFactorPoint3
-    for key, p, cov in zip(keys.tolist(), np.asarray(world, float), covariances):
-        base = gaussian(cov)
-        graph.add(prior(key, p, base if estimator is None else wrap(estimator, base)))
+    m_estimator(cfg.kernel, cfg.kernel_width)  # an unknown kernel is refused even without a row
+    model, prior = detection_noise_model, gtsam.PriorFactorPoint3
+    kernel, width = cfg.kernel, cfg.kernel_width
+    for key, p, cov in zip(keys.tolist(), np.asarray(world, float), np.asarray(covariances, float)):
+        graph.add(prior(key, p, model(cov, kernel, width)))
 
 
 def mahalanobis2(world: np.ndarray, centre: np.ndarray, covariances: np.ndarray) -> np.ndarray:

@@ -27,6 +27,7 @@ them (one per chunk boundary), while the many detection factors stay C++ factors
 
 from __future__ import annotations
 
+import functools
 from functools import partial
 
 import gtsam
@@ -69,11 +70,17 @@ def switch_prior(key_switch: int, switch_sigma: float) -> gtsam.PriorFactorVecto
     return gtsam.PriorFactorVector(key_switch, np.array([1.0]), gtsam.noiseModel.Isotropic.Sigma(1, switch_sigma))
 
 
+@functools.lru_cache(maxsize=64)
+def _dcs_noise(still_sigma_m: float, phi: float) -> gtsam.noiseModel.Base:
+    """One DCS noise model per (sigma, phi), shared read-only by every factor that uses it (a chain
+    has one per chunk boundary, and is built again for each solve)."""
+    base = gtsam.noiseModel.Isotropic.Sigma(3, still_sigma_m)
+    return gtsam.noiseModel.Robust.Create(gtsam.noiseModel.mEstimator.DCS.Create(phi), base)
+
+
 def dcs_between(key_a: int, key_b: int, still_sigma_m: float, phi: float) -> gtsam.BetweenFactorPoint3:
     """The DCS fast path: zero-motion ``BetweenFactorPoint3`` under a DCS kernel ``phi``."""
-    base = gtsam.noiseModel.Isotropic.Sigma(3, still_sigma_m)
-    robust = gtsam.noiseModel.Robust.Create(gtsam.noiseModel.mEstimator.DCS.Create(phi), base)
-    return gtsam.BetweenFactorPoint3(key_a, key_b, gtsam.Point3(0, 0, 0), robust)
+    return gtsam.BetweenFactorPoint3(key_a, key_b, gtsam.Point3(0, 0, 0), _dcs_noise(still_sigma_m, phi))
 
 
 def dcs_phi(switch_sigma: float) -> float:
@@ -85,6 +92,14 @@ def dcs_switch_value(a: np.ndarray, b: np.ndarray, still_sigma_m: float, phi: fl
     """The switch DCS implies for landmarks ``a``, ``b`` (metres): ``min(1, 2 phi / (phi + d^2))``."""
     d2 = float(np.sum((np.asarray(b) - np.asarray(a)) ** 2)) / still_sigma_m**2
     return min(1.0, 2.0 * phi / (phi + d2))
+
+
+def dcs_switch_values(landmarks: np.ndarray, still_sigma_m: float, phi: float) -> np.ndarray:
+    """:func:`dcs_switch_value` of every consecutive pair of ``landmarks`` (n, 3) at once: (n-1,), the
+    same bits (each row's three squares summed in the same order)."""
+    diff = np.asarray(landmarks, float)
+    d2 = ((diff[1:] - diff[:-1]) ** 2).sum(axis=1) / still_sigma_m**2
+    return np.minimum(1.0, 2.0 * phi / (phi + d2))
 
 
 def switch_clipped(values: gtsam.Values, key_switch: int) -> float:
