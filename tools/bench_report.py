@@ -189,7 +189,9 @@ SECTIONS: tuple[Section, ...] = (
             "The isotonic fit of calibrated against raw confidence per tracker family and the operating points "
             "at which each egograph tracker's P and R reach every baseline's, on tuning seeds only.",
             f"{PY} tools/bench_confidence.py --seeds 4 5 6 --frames 900 --fit --json-tag fit",
-            sizes=(("quick", "tuning recordings 4-6 x 900 frames"), ("full", "tuning recordings 4-6 x 900 frames")),
+            quick=f"{PY} tools/bench_confidence.py --seeds 4 5 --frames 900 --fit --json-tag fit",
+            sizes=(("quick", "2 tuning recordings x 900 frames (seeds 4, 5)"),
+                   ("full", "3 tuning recordings x 900 frames (seeds 4-6)")),
             modules=BASE + SYNTH + LIFT + TRACK, quick_min=20),
     Section("bench_causal-fixed-scale", "Causal tracking without the online noise-scale fit",
             "The same as above with the detection sigmas as configured (`graph.noise.online_auto=false`).",
