@@ -4,6 +4,7 @@ rename, how a second writer fails (or waits), and the cleanup of what killed wri
 from __future__ import annotations
 
 import contextlib
+import io
 import os
 import subprocess
 import sys
@@ -288,7 +289,7 @@ def test_two_concurrent_runs_leave_one_complete_result(tiny_rec, observations, t
     refs = {}
     for name, extra in (("a", ["--set", "graph.covariance_floor_m=0.05"]), ("b", [])):
         ref = tmp_path / f"ref_{name}"
-        with contextlib.redirect_stdout(None):
+        with contextlib.redirect_stdout(io.StringIO()):
             assert main(track_argv(tiny_rec, observations, ref, *extra)) == 0
         refs[name] = {p.name: p.read_bytes() for p in ref.iterdir() if p.name != "egograph.json"}
     out = tmp_path / "shared" / "RESULTS"

@@ -100,6 +100,7 @@ class SequenceEval:
     labels: Sequence[str] | None = None
     frames_without_file: int = 0
     answers: ScoredAnswers | None = None   # every answer with its confidence, scored (egograph.eval.curves)
+    ap: Mapping[str, float] | None = None  # AP per threshold read back from JSON (where the answers are not kept)
 
     def instance_key(self, instance: int) -> str:
         """``"seq/3(cup_1)"``, or ``"seq/3"`` when the name is unknown."""
@@ -124,14 +125,17 @@ class EvalReport:
         labels: Sequence[str] | None = None,
         frames_without_file: int = 0,
         answers: ScoredAnswers | None = None,
+        ap: Mapping[str, float] | None = None,
     ) -> None:
         """Add one sequence's result (names must be unique; thresholds must match); ``answers``:
-        every answer with its confidence, for the precision-recall curves."""
+        every answer with its confidence, for the precision-recall curves; ``ap``: its AP per
+        threshold where only that was kept (read back from JSON)."""
         if name in self.sequences:
             raise ValueError(f"sequence {name!r} is already in the report")
         if result.total.thresholds != tuple(self.thresholds):
             raise ValueError(f"sequence {name!r} uses thresholds {result.total.thresholds}, report {self.thresholds}")
-        self.sequences[name] = SequenceEval(name, result, intervals, labels, int(frames_without_file), answers)
+        self.sequences[name] = SequenceEval(name, result, intervals, labels, int(frames_without_file), answers,
+                                            dict(ap) if ap is not None else None)
 
     @property
     def total(self) -> Counts:
@@ -188,6 +192,8 @@ class EvalReport:
             seq["labels"] = list(s.labels) if s.labels is not None else None
             if s.answers is not None:
                 seq["ap"] = {threshold_label(t): round(c.ap, 6) for t, c in pr_curves(s.answers).items()}
+            elif s.ap is not None:
+                seq["ap"] = dict(s.ap)
             out["per_sequence"][s.name] = seq
             for inst, c in sorted(s.result.per_instance.items()):
                 row = counts_metrics(c)
@@ -207,7 +213,7 @@ class EvalReport:
             result = SequenceResult(counts_from_metrics(seq), per_inst.get(name, {}), int(seq.get("n_frames", 0)))
             iv = seq.get("intervals")
             report.add(name, result, IntervalScore.from_dict(iv) if iv else None, seq.get("labels"),
-                       int(seq.get("frames_without_file", 0)))
+                       int(seq.get("frames_without_file", 0)), ap=seq.get("ap"))
         return report
 
     def write_json(self, path: str | Path) -> None:

@@ -672,7 +672,7 @@ def pooled_reports(plan: RunPlan, results: dict, round: int | None = None) -> di
             if t.stage == "eval" and t.tracker == tracker and t.round == r and results[t.key]["status"] == OK:
                 one = EvalReport.from_json_dict(json.loads((t.out / EVAL_FILE).read_text()))
                 for name, s in one.sequences.items():
-                    pooled.add(name, s.result, s.intervals, s.labels, s.frames_without_file)
+                    pooled.add(name, s.result, s.intervals, s.labels, s.frames_without_file, ap=s.ap)
         if "eval" in plan.stages:
             reports[tracker] = pooled
     return reports
