@@ -13,10 +13,14 @@ whether its curve passes at or above every baseline's point, pooled and on every
 IT3DEgo P and R at the default operating point (graph.answers.min_confidence) against the best
 baseline, and the expected calibration error (at graph.answers.distance_m).
 
---fit (tuning seeds only): runs the graph trackers with the identity calibration, fits an
-isotonic map from raw to calibrated confidence per tracker family (offline: graph;
-causal: graph-causal; smooth), prints the knots for graph.answers.{offline,causal,smooth}_calibration and, for
-a grid of operating points, whether P and R at every threshold reach every baseline's pooled.
+--fit (tuning seeds only): runs the graph trackers with a calibration that lets every answer's raw
+confidence and kind be read back (FIT_KNOTS, FIT_KINDS), and fits, per tracker family (offline:
+graph; causal: graph-causal; smooth) and front-end (clean or noisy: graph.answers.noisy_scale),
+an isotonic map from raw to calibrated confidence of the stands (egograph.track.answers.isotonic_knots,
+blocks of at least --min-share of the answers) and the share within graph.answers.distance_m of
+each other kind of answer; prints them for graph.answers.{,noisy_}{offline,causal,smooth}_{calibration,kinds},
+the in-sample reliability per kind and, for a grid of operating points, whether P and R at every
+threshold reach every baseline's pooled.
 """
 
 from __future__ import annotations
@@ -39,24 +43,41 @@ from egograph.steps.recording import open_recording
 from egograph.steps.settings import EgographConfig
 from egograph.steps.track import track as track_step
 from egograph.synth.benchset import benchmark_set, cached_observations
-from egograph.track.answers import calibrated
+from egograph.track.answers import ANSWER_KINDS, STAND, calibrated, isotonic_knots
 from egograph.track.registry import graph_with_scene
 from egograph.track.smooth import smooth_predictions
 
 REPO = Path(__file__).resolve().parents[1]
 BASELINES = ("memory", "kf")
-IDENTITY = [[0.0, 0.0], [1.0, 1.0]]
+FIT_KNOTS = [[0.0, 0.0], [1.0, 0.5]]
+"""--fit: a stand's confidence is half its raw value (raw = 2 x confidence, in [0, 0.5]) ..."""
+FIT_KINDS = [0.6, 0.7, 0.8, 0.9]
+"""... and every other kind (unseen, hand, last, put_down) one of these, above every stand's."""
+MIN_SHARE = 0.02
+"""--fit: the smallest share of a family's stand answers one block of the isotonic fit holds
+(chosen by leave-one-recording-out on the tuning seeds)."""
 
 
-def run_recording(root: Path, overrides: list[str], lags: list[float], identity: bool) -> dict:
-    """{set: {tracker: ScoredAnswers}} of one recording (raw confidences with ``identity``)."""
+def decode(a: ScoredAnswers) -> tuple[np.ndarray, np.ndarray]:
+    """(raw confidence, kind code) of answers scored with FIT_KNOTS and FIT_KINDS."""
+    kind = np.full(len(a.score), STAND, np.int64)
+    raw = np.clip(2.0 * a.score, 0.0, 1.0)
+    for code, value in enumerate(FIT_KINDS, start=1):
+        at = np.abs(a.score - value) < 1e-9
+        kind[at] = code
+        raw[at] = 0.0
+    return raw, kind
+
+
+def run_recording(root: Path, overrides: list[str], lags: list[float], fit: bool) -> dict:
+    """{set: {tracker: ScoredAnswers}} of one recording (with ``fit``: scored so that :func:`decode`
+    reads back each answer's raw confidence and kind)."""
     cfg = load_config(EgographConfig, default_config(), overrides)
-    if identity:
-        cfg.graph.answers.offline_calibration = IDENTITY
-        cfg.graph.answers.causal_calibration = IDENTITY
-        cfg.graph.answers.smooth_calibration = IDENTITY
+    if fit:
         for fam in ("offline", "causal", "smooth"):
-            setattr(cfg.graph.answers, f"noisy_{fam}_calibration", IDENTITY)
+            for noisy in ("", "noisy_"):
+                setattr(cfg.graph.answers, f"{noisy}{fam}_calibration", FIT_KNOTS)
+                setattr(cfg.graph.answers, f"{noisy}{fam}_kinds", FIT_KINDS)
     rec = open_recording(root, cfg)
     out: dict = {}
     scales: dict = {}
@@ -103,48 +124,53 @@ def family(name: str) -> str | None:
     return None
 
 
-def fit_isotonic(raw: np.ndarray, correct: np.ndarray, n_knots: int = 16) -> list[list[float]]:
-    """Isotonic regression of ``correct`` on ``raw`` (pool-adjacent-violators), as at most
-    ``n_knots`` [raw, calibrated] knots: each block of the fit is a knot at its answer-weighted mean
-    raw value, and the two adjacent blocks whose values differ least (weighted by their answers) are
-    merged until few enough remain; 0 and 1 pinned to the end values."""
-    order = np.argsort(raw, kind="stable")
-    x, y = np.asarray(raw, float)[order], np.asarray(correct, float)[order]
-    blocks: list[list[float]] = []   # [sum of y, count, sum of x]
-    for xi, yi in zip(x, y):         # pool adjacent violators (ties in x pooled first)
-        if blocks and blocks[-1][2] / blocks[-1][1] == xi:
-            blocks[-1][0] += yi
-            blocks[-1][1] += 1
-            blocks[-1][2] += xi
-        else:
-            blocks.append([yi, 1.0, xi])
-        while len(blocks) > 1 and blocks[-2][0] / blocks[-2][1] >= blocks[-1][0] / blocks[-1][1]:
-            a, n, sx = blocks.pop()
-            blocks[-1][0] += a
-            blocks[-1][1] += n
-            blocks[-1][2] += sx
-    while len(blocks) > n_knots - 2:
-        cost = [min(b[1], c[1]) * (c[0] / c[1] - b[0] / b[1]) for b, c in zip(blocks, blocks[1:])]
-        k = int(np.argmin(cost))
-        b, c = blocks[k], blocks.pop(k + 1)
-        b[0] += c[0]
-        b[1] += c[1]
-        b[2] += c[2]
-    xs = [b[2] / b[1] for b in blocks]
-    ys = [b[0] / b[1] for b in blocks]
-    knots = [[0.0, ys[0]]] + [[x_, y_] for x_, y_ in zip(xs, ys)] + [[1.0, ys[-1]]]
-    out: list[list[float]] = []
-    for x_, y_ in knots:             # rounded for the config, raw strictly increasing
-        x_, y_ = round(float(x_), 6), round(float(y_), 4)
-        if out and x_ <= out[-1][0]:
-            out[-1][1] = max(out[-1][1], y_)
-            continue
-        out.append([x_, max(y_, out[-1][1]) if out else y_])
-    return out
+def fit_calibration(parts: list[dict], cfg, min_share: float) -> tuple[dict, dict]:
+    """Per tracker family and front-end (clean or noisy), the stands' isotonic knots and every
+    other kind's share within ``graph.answers.distance_m`` -> ({knob: knots}, {knob: [4 shares]});
+    a kind no tuning answer has gets the share of all the family's answers. Printed with the answers per kind."""
+    knots, kinds, rows = {}, {}, []
+    split = cfg.graph.answers.noisy_scale
+    k_cal = THRESHOLDS.index(cfg.graph.answers.distance_m)
+    for fam in ("offline", "causal", "smooth"):
+        for noisy in (False, True):
+            raw, kind, ok = [], [], []
+            for p in parts:
+                for det_set in ("svoe", "mvpe"):
+                    for n, a in p[det_set].items():
+                        if family(n) == fam and (p["scales"][(det_set, n)] >= split) == noisy:
+                            r, k = decode(a)
+                            raw.append(r)
+                            kind.append(k)
+                            ok.append((a.tp[:, k_cal] > 0).astype(float))
+            name = f"{'noisy_' if noisy else ''}{fam}"
+            if not raw:
+                benchdoc.text(f"graph.answers.{name}_*: no tuning answers (kept)")
+                continue
+            raw, kind, ok = np.concatenate(raw), np.concatenate(kind), np.concatenate(ok)
+            stand = kind == STAND
+            if stand.any():
+                knots[f"{name}_calibration"] = isotonic_knots(raw[stand], ok[stand], min_share=min_share)
+                benchdoc.text(f"graph.answers.{name}_calibration: {json.dumps(knots[f'{name}_calibration'])}")
+            shares = []  # a kind no tuning answer has: the share of all the family's answers
+            for code, label in enumerate(ANSWER_KINDS):
+                at = kind == code
+                rows.append([name, label, int(at.sum()), f"{ok[at].mean():.3f}" if at.any() else "-"])
+                if code:
+                    shares.append(round(float(ok[at].mean() if at.any() else ok.mean()), 4))
+            kinds[f"{name}_kinds"] = shares
+            benchdoc.text(f"graph.answers.{name}_kinds: {json.dumps(shares)}")
+    benchdoc.table(f"Tuning answers per tracker family, front-end and kind: how many, and the share within "
+                   f"{cfg.graph.answers.distance_m:g} m", ["family", "kind", "answers", "share within"], rows)
+    return knots, kinds
 
 
-def recalibrated(a: ScoredAnswers, knots) -> ScoredAnswers:
-    return ScoredAnswers(a.thresholds, calibrated(a.score, knots), a.tp, a.n_gt)
+def recalibrated(a: ScoredAnswers, knots, kinds) -> ScoredAnswers:
+    """Answers scored with FIT_KNOTS/FIT_KINDS, their confidence as ``knots`` and ``kinds`` give it."""
+    raw, kind = decode(a)
+    score = calibrated(raw, knots)
+    for code, value in enumerate(kinds, start=1):
+        score[kind == code] = value
+    return ScoredAnswers(a.thresholds, score, a.tp, a.n_gt)
 
 
 def pooled(parts: list[dict], det_set: str, name: str) -> ScoredAnswers:
@@ -175,15 +201,14 @@ def report(parts: list[dict], seeds: list[int], min_conf: dict, tau_cal: float) 
                 row["ap"] = [round(pr_curve(a, t).ap * 100, 2) for t in THRESHOLDS]
                 row["passes"] = [all(pr_curve(a, t).passes(*base_pts[b][k]) for b in bases)
                                  for k, t in enumerate(THRESHOLDS)]
+                row["ece"] = round(reliability(a, tau_cal).ece, 4)
                 if scope == "pooled":
                     op = [point(a, k, min_conf[family(n)]) for k in range(len(THRESHOLDS))]
                     row["op_p"] = [round(100 * p, 2) for p, _ in op]
                     row["op_r"] = [round(100 * r, 2) for _, r in op]
                     row["op_dominates"] = [all(op[k][0] >= base_pts[b][k][0] - 1e-12 and op[k][1] >= base_pts[b][k][1]
                                                - 1e-12 for b in bases) for k in range(len(THRESHOLDS))]
-                    rel = reliability(a, tau_cal)
-                    row["ece"] = round(rel.ece, 4)
-                    row["reliability"] = rel.to_json_dict()
+                    row["reliability"] = reliability(a, tau_cal).to_json_dict()
             if scope == "pooled":
                 for b in bases:
                     res.setdefault(b, {})["pooled"] = {"p": [round(100 * p, 2) for p, _ in base_pts[b]],
@@ -193,16 +218,18 @@ def report(parts: list[dict], seeds: list[int], min_conf: dict, tau_cal: float) 
         for n in ours:
             r = res[n]["pooled"]
             per = [all(res[n][str(s)]["passes"]) for s in seeds]
-            rows.append([n, *r["ap"], r["ece"], "yes" if all(r["passes"]) else
+            eces = [res[n][str(s)]["ece"] for s in seeds]
+            rows.append([n, *r["ap"], r["ece"], f"{min(eces):.3f}-{max(eces):.3f}", "yes" if all(r["passes"]) else
                          "NO at " + ", ".join(l for l, ok in zip(labels, r["passes"]) if not ok),
                          "yes" if all(per) else "NO on " + "; ".join(
                              f"{s} at " + ",".join(l for l, ok in zip(labels, res[n][str(s)]["passes"]) if not ok)
                              for s, ok in zip(seeds, per) if not ok)])
         benchdoc.table(f"{det_set.upper()}: average precision over confidence (%, all-point interpolated), ECE at "
-                       f"{tau_cal:g} m, and whether each curve passes at or above every baseline's point (memory, kf; "
-                       "both liftings) at every threshold",
-                       ["tracker", *[f"AP@{l}" for l in labels], "ECE", "passes (pooled)", "passes (every recording)"],
-                       rows, ["", *[".1f"] * len(labels), ".3f", "", ""])
+                       f"{tau_cal:g} m (pooled, and its range over the recordings), and whether each curve passes at "
+                       "or above every baseline's point (memory, kf; both liftings) at every threshold",
+                       ["tracker", *[f"AP@{l}" for l in labels], "ECE", "ECE per recording", "passes (pooled)",
+                        "passes (every recording)"],
+                       rows, ["", *[".1f"] * len(labels), ".3f", "", "", ""])
         benchdoc.table(f"{det_set.upper()}: the baselines' points and the egograph trackers at the default operating "
                        f"point (graph.answers.min_confidence {min_conf['offline']:g}, causal_min_confidence "
                        f"{min_conf['causal']:g}), P / R % (pooled)",
@@ -234,6 +261,8 @@ def main() -> None:
     ap.add_argument("--cache", type=Path, default=REPO / ".cache" / "bench")
     ap.add_argument("--fit", action="store_true", help="fit the calibration and choose the operating point "
                                                        "(tuning seeds only)")
+    ap.add_argument("--min-share", type=float, default=MIN_SHARE,
+                    help="--fit: each block of the stands' isotonic fit holds at least this share of the answers")
     ap.add_argument("--out", type=Path, help="also write every figure (curves' APs, reliability, knots) here as JSON")
     benchdoc.add_arguments(ap, __file__)
     args = ap.parse_args()
@@ -245,32 +274,17 @@ def main() -> None:
     cfg = load_config(EgographConfig, default_config(), args.overrides)
     doc = {"seeds": args.seeds, "frames": args.frames, "lags": args.lags, "overrides": args.overrides}
     if args.fit:
-        knots = {}
-        split = cfg.graph.answers.noisy_scale
-        for fam in ("offline", "causal", "smooth"):
-            for noisy in (False, True):
-                raw, ok = [], []
-                for p in parts:
-                    for det_set in ("svoe", "mvpe"):
-                        for n, a in p[det_set].items():
-                            if family(n) == fam and (p["scales"][(det_set, n)] >= split) == noisy:
-                                raw.append(a.score)
-                                ok.append(a.tp[:, THRESHOLDS.index(cfg.graph.answers.distance_m)] > 0)
-                key = f"{'noisy_' if noisy else ''}{fam}_calibration"
-                if not raw:
-                    benchdoc.text(f"graph.answers.{key}: no tuning answers (kept)")
-                    continue
-                knots[key] = fit_isotonic(np.concatenate(raw), np.concatenate(ok).astype(float))
-                benchdoc.text(f"graph.answers.{key}: {json.dumps(knots[key])}")
+        knots, kinds = fit_calibration(parts, cfg, args.min_share)
         for p in parts:
             for det_set in ("svoe", "mvpe"):
                 for n in list(p[det_set]):
                     if family(n):
-                        key = f"{'noisy_' if p['scales'][(det_set, n)] >= split else ''}{family(n)}_calibration"
-                        if key in knots:
-                            p[det_set][n] = recalibrated(p[det_set][n], knots[key])
+                        key = f"{'noisy_' if p['scales'][(det_set, n)] >= cfg.graph.answers.noisy_scale else ''}{family(n)}"
+                        p[det_set][n] = recalibrated(p[det_set][n], knots.get(f"{key}_calibration", FIT_KNOTS),
+                                                     kinds.get(f"{key}_kinds", FIT_KINDS))
+        doc["kinds"] = kinds
         doc["knots"] = knots
-        grid = np.round(np.arange(0.05, 0.96, 0.05), 2)
+        grid = np.round(np.concatenate([np.arange(0.0, 0.05, 0.01), np.arange(0.05, 0.96, 0.05)]), 2)
         feasible: dict[str, list[float]] = {}
         for n in (n for n in parts[0]["svoe"] if family(n)):
             ok_at = []

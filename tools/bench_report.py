@@ -186,12 +186,14 @@ SECTIONS: tuple[Section, ...] = (
             quick=f"{PY} tools/bench_confidence.py --seeds 1 301 --frames 900 --lags 2 30 --json-tag heldout-lags",
             sizes=CONFIDENCE_SIZES, modules=BASE + SYNTH + LIFT + TRACK, quick_min=20),
     Section("bench_confidence-fit", "Answers with a confidence: the calibration fit (tuning seeds)",
-            "The isotonic fit of calibrated against raw confidence per tracker family and the operating points "
-            "at which each egograph tracker's P and R reach every baseline's, on tuning seeds only.",
-            f"{PY} tools/bench_confidence.py --seeds 4 5 6 --frames 900 --fit --json-tag fit",
+            "The calibration fit per tracker family and front-end: the isotonic fit of calibrated against raw "
+            "confidence of the stands, every other kind of answer's share within 0.25 m, the answers per kind, "
+            "and the operating points at which each egograph tracker's P and R reach every baseline's, on "
+            "tuning seeds only.",
+            f"{PY} tools/bench_confidence.py --seeds 4 5 6 7 8 11 12 --frames 900 --fit --json-tag fit",
             quick=f"{PY} tools/bench_confidence.py --seeds 4 5 --frames 900 --fit --json-tag fit",
             sizes=(("quick", "2 tuning recordings x 900 frames (seeds 4, 5)"),
-                   ("full", "3 tuning recordings x 900 frames (seeds 4-6)")),
+                   ("full", "7 tuning recordings x 900 frames (seeds 4-8, 11, 12)")),
             modules=BASE + SYNTH + LIFT + TRACK, quick_min=20),
     Section("bench_causal-fixed-scale", "Causal tracking without the online noise-scale fit",
             "The same as above with the detection sigmas as configured (`graph.noise.online_auto=false`).",

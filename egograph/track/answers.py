@@ -6,12 +6,19 @@ unseen; and as the score (the fifth column of the per-frame files) the probabili
 lies within ``graph.answers.distance_m`` of the truth, as the IT3DEgo evaluator counts it (a frame
 of a carry has no true interval, so an answer there is never within: its confidence is low).
 
-The place chain gives a *raw* confidence per answer (offline: the posterior probability of the
-answered stand times the place's reality, :func:`offline_answers`; online: the leading state's
-max-marginal, :mod:`egograph.track.online`); :func:`calibrated` maps it through monotone knots fitted
-on tuning recordings (isotonic regression, ``tools/bench_confidence.py --fit``) so that a confidence
-matches the frequency of answers within the distance. :func:`operating_point` keeps the answers of at
-least ``min_confidence`` (graph-causal: ``causal_min_confidence``): what the per-frame files hold. World frame, metres; PV frame indices.
+Each answer has a *kind* (``ANSWER_KINDS``): a stand at a place, the place where it was last seen
+while unseen, the hand while carried, the newest detection of an instance with no place, where the
+hand let go (online). A stand's *raw* confidence comes from the place chain (offline: the posterior
+probability of the answered stand times the place's reality, :func:`offline_answers`; online: the
+leading state's max-marginal, :mod:`egograph.track.online`) and :func:`calibrated` maps it through
+monotone knots fitted on tuning recordings (isotonic regression, ``tools/bench_confidence.py --fit``);
+every other kind's raw value says nothing about how often it is right (a constant, or a share of a
+state the answer is not at), so each kind has its own fitted confidence (the share of such answers
+within the distance on the tuning recordings): :func:`confidences`. Without the split, one
+monotone map over all kinds pooled the often-right answers of an instance with no place with the
+never-right hand's, and the held-out error came from such bins.
+:func:`operating_point` keeps the answers of at least ``min_confidence`` (graph-causal:
+``causal_min_confidence``): what the per-frame files hold. World frame, metres; PV frame indices.
 """
 
 from __future__ import annotations
@@ -24,12 +31,20 @@ from egograph.core.types import Prediction
 from egograph.track.config import AnswersConfig, GraphConfig
 from egograph.track.places import UNSEEN_STATE, stand_state, state_kind
 
+STAND, UNSEEN, HAND, LAST, PUT_DOWN = range(5)
+ANSWER_KINDS = ("stand", "unseen", "hand", "last", "put_down")
+"""Answer kinds (codes index this tuple; ``graph.answers.*_kinds`` list the confidences of the
+kinds after the first, in this order): a stand at a
+place (an interval's, or off the intervals the most probable place); unseen (a place the object is
+not on the chain's path to: the best place, or the hand's last position); the hand while carried;
+the newest (offline: nearest in time) detection of an instance with no place; where the hand let go
+(graph-causal, ``put_down_after_s`` after the last detection in hand)."""
+
 HAND_RAW = 0.0
-"""Raw confidence of an answer at the hand while carried (never inside a true interval)."""
+"""Raw confidence of an answer at the hand while carried (its calibrated confidence: the kind's)."""
 
 LAST_RAW = 0.001
-"""Raw confidence of an answer at the newest detection of an instance with no place yet (a sliver
-above the hand's, so that calibration tells the two apart: such a detection is often right)."""
+"""Raw confidence of an answer at the newest detection of an instance with no place yet."""
 
 EMPTY_FACTOR = 0.1
 """Raw confidence factor of a stand at a place depth has shown empty (offline, after the cut)."""
@@ -41,6 +56,79 @@ def calibrated(raw: np.ndarray | float, knots: Sequence[Sequence[float]]) -> np.
     return np.clip(np.interp(np.asarray(raw, float), k[:, 0], k[:, 1]), 0.0, 1.0)
 
 
+def confidences(raw: np.ndarray, kind: np.ndarray, answers: AnswersConfig, family: str, scale: float) -> np.ndarray:
+    """Calibrated confidences of answers of raw confidence ``raw`` and kind ``kind`` (codes of
+    ``ANSWER_KINDS``) of tracker ``family`` (offline, causal, smooth) at detection noise scale
+    ``scale``: stands through the family's knots, every other kind its fitted constant."""
+    raw = np.asarray(raw, float)
+    kind = np.asarray(kind, np.int64)
+    out = calibrated(raw, answers.knots(family, scale))
+    for code, value in enumerate(answers.kinds(family, scale), start=1):
+        out[kind == code] = value
+    return out
+
+
+def isotonic_knots(raw: np.ndarray, correct: np.ndarray, n_knots: int = 16, min_share: float = 0.0
+                   ) -> list[list[float]]:
+    """Calibration knots ``[raw, calibrated]`` fitted to answers of raw confidence ``raw`` and
+    ``correct`` (1 within the distance, 0 not): the isotonic regression of ``correct`` on ``raw``
+    (pool-adjacent-violators; ties in raw pooled first), its blocks then merged with a neighbour
+    while one holds fewer than ``min_share`` of the answers (a block of a few answers from one
+    recording is noise that does not transfer) and while more than ``n_knots - 2`` remain (the
+    adjacent pair whose values differ least, weighted by the smaller's answers). Each block is a
+    knot at its mean raw value; 0 and 1 pinned to the end values; rounded, raw strictly
+    increasing, calibrated non-decreasing (what ``graph.answers.*_calibration`` accepts)."""
+    order = np.argsort(raw, kind="stable")
+    x, y = np.asarray(raw, float)[order], np.asarray(correct, float)[order]
+    if not len(x):
+        raise ValueError("no answers to fit a calibration to")
+    blocks: list[list[float]] = []   # [sum of correct, count, sum of raw]
+    for xi, yi in zip(x, y):
+        if blocks and blocks[-1][2] / blocks[-1][1] == xi:
+            blocks[-1][0] += yi
+            blocks[-1][1] += 1
+            blocks[-1][2] += xi
+        else:
+            blocks.append([yi, 1.0, xi])
+        while len(blocks) > 1 and blocks[-2][0] / blocks[-2][1] >= blocks[-1][0] / blocks[-1][1]:
+            _merge(blocks, len(blocks) - 2)
+
+    def gap(k: int) -> float:  # merging blocks k and k + 1 costs the value step times the smaller's answers
+        b, c = blocks[k], blocks[k + 1]
+        return min(b[1], c[1]) * (c[0] / c[1] - b[0] / b[1])
+
+    while len(blocks) > 1:
+        small = [k for k, b in enumerate(blocks) if b[1] < min_share * len(x)]
+        if small:
+            k = min(small, key=lambda k: blocks[k][1])
+            k = k - 1 if k == len(blocks) - 1 or (k > 0 and gap(k - 1) <= gap(k)) else k
+        elif len(blocks) > n_knots - 2:
+            k = min(range(len(blocks) - 1), key=gap)
+        else:
+            break
+        _merge(blocks, k)
+    xs = [b[2] / b[1] for b in blocks]
+    ys = [b[0] / b[1] for b in blocks]
+    knots = [[0.0, ys[0]]] + [[x_, y_] for x_, y_ in zip(xs, ys)] + [[1.0, ys[-1]]]
+    out: list[list[float]] = []
+    for x_, y_ in knots:
+        x_, y_ = round(float(x_), 6), round(float(y_), 4)
+        if out and x_ <= out[-1][0]:
+            out[-1][1] = max(out[-1][1], y_)
+            continue
+        out.append([x_, max(y_, out[-1][1]) if out else y_])
+    if len(out) == 1:  # every answer at raw 1
+        out.insert(0, [0.0, out[0][1]])
+    return out
+
+
+def _merge(blocks: list[list[float]], k: int) -> None:
+    """Blocks k and k + 1 of an isotonic fit pooled into k."""
+    c = blocks.pop(k + 1)
+    for i in range(3):
+        blocks[k][i] += c[i]
+
+
 def _nearest(frames: np.ndarray, at: np.ndarray) -> np.ndarray:
     """Index into sorted ``frames`` of the one nearest each of ``at`` (ties: the earlier)."""
     i = np.clip(np.searchsorted(frames, at), 1, max(len(frames) - 1, 1))
@@ -50,18 +138,22 @@ def _nearest(frames: np.ndarray, at: np.ndarray) -> np.ndarray:
 
 
 def offline_answers(sol, path: np.ndarray | None, post: np.ndarray | None, reality: Sequence[float],
-                    n_frames: int, cfg: GraphConfig) -> tuple[np.ndarray, np.ndarray]:
-    """One instance's answer at every frame, offline -> (xyz (T, 3) world metres, raw confidence (T,)).
+                    n_frames: int, cfg: GraphConfig) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """One instance's answer at every frame, offline -> (xyz (T, 3) world metres, raw confidence (T,),
+    kind (T,) codes of ``ANSWER_KINDS``).
 
     Frames its intervals cover answer the interval (raw: the posterior of its stand there times the
     place's reality; of UNSEEN, halved, at the hand's last position); a carried frame answers the
     nearest detection in hand (raw ``HAND_RAW``); any other frame the place of largest posterior
     times reality (raw: that product, times ``EMPTY_FACTOR`` at a place depth showed empty). Without
-    places, the nearest detection in time (raw ``LAST_RAW``). Rows NaN when the instance has no detection."""
+    places, the nearest detection in time (raw ``LAST_RAW``). Kinds: an interval at a place and the
+    most probable place STAND, an UNSEEN interval UNSEEN, a carried frame HAND, no places LAST. Rows
+    NaN when the instance has no detection."""
     xyz = np.full((n_frames, 3), np.nan)
     raw = np.zeros(n_frames)
+    kind = np.full(n_frames, STAND, np.int64)
     if sol.world is None or not len(sol.world):
-        return xyz, raw
+        return xyz, raw, kind
     frames = np.asarray(sol.frames, np.int64)
     order = np.argsort(frames, kind="stable")
     t = np.arange(n_frames)
@@ -70,7 +162,8 @@ def offline_answers(sol, path: np.ndarray | None, post: np.ndarray | None, reali
     if post is None or k == 0:
         xyz[:] = sol.world[order][_nearest(frames[order], t)]
         raw[:] = LAST_RAW
-        return xyz, raw
+        kind[:] = LAST
+        return xyz, raw, kind
     real = np.asarray(reality, float)
     stand = post[:, [stand_state(j) for j in range(k)]] * real[None, :]
     covered = np.zeros(n_frames, bool)
@@ -79,6 +172,7 @@ def offline_answers(sol, path: np.ndarray | None, post: np.ndarray | None, reali
         xyz[a:b + 1] = iv.xyz
         j = iv.extra.get("place")
         raw[a:b + 1] = stand[a:b + 1, j] if j is not None else post[a:b + 1, UNSEEN_STATE] * 0.5
+        kind[a:b + 1] = STAND if j is not None else UNSEEN
         covered[a:b + 1] = True
     kinds = np.array([state_kind(int(s)) for s in range(post.shape[1])])[path]
     best = np.argmax(stand, axis=1)
@@ -90,11 +184,12 @@ def offline_answers(sol, path: np.ndarray | None, post: np.ndarray | None, reali
         at = carried.nonzero()[0]
         xyz[at] = sol.world[near][_nearest(frames[near], at)]
         raw[at] = HAND_RAW
+        kind[at] = HAND
         rest &= ~carried
     at = np.flatnonzero(rest)
     xyz[at] = np.array([p.xyz for p in places])[best[at]]
     raw[at] = stand[at, best[at]] * np.where(kinds[at] == best[at], EMPTY_FACTOR, 1.0)
-    return xyz, raw
+    return xyz, raw, kind
 
 
 def predictions(instance: int, xyz: np.ndarray, conf: np.ndarray, t_frames: np.ndarray,

@@ -168,21 +168,23 @@ class PlacesConfig(Checked):
             raise rule_error(self, "{} + {} must be <= 1", "put_back", "unseen_put_down")
 
 
-# Calibration knots fitted on tuning seeds 4-5 (900 frames, SVOE and MVPE) by tools/bench_confidence.py
-# --fit (docs/bench/bench_confidence-fit.json): [raw, calibrated] (graph.answers below).
-_OFFLINE_CALIBRATION = [[0.0, 0.0143], [0.001494, 0.0143], [0.187028, 0.2222], [0.235526, 0.3333], [0.250359, 0.9716], [0.377125,
-    0.9867], [0.59532, 0.9871], [0.919672, 0.9926], [0.958551, 1.0], [1.0, 1.0]]
-_NOISY_OFFLINE_CALIBRATION = [[0.0, 0.0], [0.000516, 0.0], [0.001, 0.1584], [0.044623, 0.3157], [0.2772, 0.4419], [0.30582, 0.5], [0.346754,
-    0.5833], [0.492061, 0.8138], [0.634915, 0.8396], [1.0, 0.8396]]
-_CAUSAL_CALIBRATION = [[0.0, 0.1202], [4e-06, 0.1202], [0.469686, 0.2311], [0.655012, 0.6667], [0.881915, 0.7521], [0.998911, 0.8333],
-    [0.999252, 0.8889], [0.999323, 0.9091], [0.999442, 0.9861], [0.99996, 0.9889], [0.999972, 0.9943],
-    [0.999988, 1.0], [1.0, 1.0]]
-_NOISY_CAUSAL_CALIBRATION = [[0.0, 0.0083], [5.1e-05, 0.0141], [0.058334, 0.0152], [0.1, 0.1], [0.349543, 0.4227], [0.517636, 0.5577],
-    [0.603604, 0.5622], [0.79776, 0.5819], [0.998757, 0.7567], [0.999443, 0.9268], [0.99945, 0.9574], [0.999492,
-    0.9782], [0.999964, 1.0], [1.0, 1.0]]
-_SMOOTH_CALIBRATION = [[0.0, 0.0745], [0.0115, 0.1429], [0.023211, 0.2], [0.283062, 0.2141], [0.411454, 0.2308], [0.41172, 0.3333],
-    [0.441762, 0.3632], [0.481763, 0.3818], [0.494875, 0.4498], [0.499643, 0.5122], [0.499683, 0.5185],
-    [0.499739, 0.5529], [0.499816, 0.5833], [0.499994, 0.6771], [1.0, 0.6771]]
+# Calibration fitted on tuning seeds 4-8, 11, 12 (900 frames, SVOE and MVPE) by tools/bench_confidence.py
+# --fit (docs/bench/bench_confidence-fit.json): the stands' [raw, calibrated] knots (isotonic, blocks of at
+# least 5 % of the answers) and the other kinds' confidences (graph.answers below). A kind no tuning answer
+# has (offline: put_down; smooth: unseen, put_down) has the share of all the family's answers.
+_OFFLINE_CALIBRATION = [[0.0, 0.8808], [0.297993, 0.8808], [0.427151, 0.9719], [0.53888, 0.9857], [0.640276,
+    0.9894], [0.766419, 0.9907], [0.931662, 0.9964], [0.984748, 0.9983], [1.0, 0.9983]]
+_NOISY_OFFLINE_CALIBRATION = [[0.0, 0.3812], [0.275021, 0.3812], [0.430441, 0.5539], [0.52956, 0.8021], [0.66632,
+    0.9119], [1.0, 0.9119]]
+_CAUSAL_CALIBRATION = [[0.0, 0.2195], [0.692031, 0.2195], [0.996109, 0.9198], [0.999477, 0.9752], [0.999974, 0.991],
+    [1.0, 0.991]]
+_NOISY_CAUSAL_CALIBRATION = [[0.0, 0.1814], [0.457222, 0.1814], [0.647934, 0.2467], [0.867372, 0.3393], [0.962096,
+    0.4855], [0.995108, 0.7334], [0.999431, 0.781], [0.999516, 0.8284], [1.0, 0.8284]]
+_SMOOTH_CALIBRATION = [[0.0, 0.2608], [0.259471, 0.2608], [0.491968, 0.5336], [0.499994, 0.6094], [1.0, 0.6094]]
+
+_KINDS = {"offline": [1.0, 0.0113, 0.25, 0.8674], "noisy_offline": [1.0, 0.1209, 0.0848, 0.5807],
+          "causal": [0.0753, 0.1075, 0.9091, 0.6205], "noisy_causal": [0.1417, 0.0153, 0.0, 0.0292],
+          "smooth": [0.5578, 0.061, 0.39, 0.5578]}
 
 
 @dataclass
@@ -204,9 +206,9 @@ class AnswersConfig(Checked):
     distance_m: float = knob(0.25, "the confidence is the probability that the answer lies within this distance "
                                    "of the truth (what the calibration below was fitted for), metres", gt=0.0)
     offline_calibration: list = knob(_OFFLINE_CALIBRATION,
-                                     "offline graph: raw confidence -> calibrated, as [raw, calibrated] knots joined "
-                                     "linearly (an isotonic fit on tuning recordings: tools/bench_confidence.py "
-                                     "--fit)")
+                                     "offline graph: the raw confidence of an answer at a stand -> calibrated, as "
+                                     "[raw, calibrated] knots joined linearly (an isotonic fit on tuning recordings: "
+                                     "tools/bench_confidence.py --fit; the other kinds of answer: offline_kinds)")
     causal_calibration: list = knob(_CAUSAL_CALIBRATION,
                                     "graph-causal (every lag): raw confidence -> calibrated knots, as "
                                     "offline_calibration")
@@ -224,11 +226,32 @@ class AnswersConfig(Checked):
     noisy_smooth_calibration: list = knob([[0.0, 0.0], [1.0, 1.0]],
                                           "smooth_calibration of a noisy front-end (identity: on the tuning "
                                           "recordings smoothing always fitted the smallest scale, 0.5)")
+    offline_kinds: list = knob(_KINDS["offline"],
+                               "offline graph: the confidence of its answers that are not at a stand, per kind: "
+                               "[unseen, hand, last, put_down] (egograph.track.answers.ANSWER_KINDS; the share "
+                               "of such answers within distance_m on the tuning recordings, tools/bench_confidence.py "
+                               "--fit: their raw value carries no evidence of being right, and one monotone map with "
+                               "the stands' pooled kinds that are right at very different rates)",
+                               min=0.0, max=1.0, length=4)
+    causal_kinds: list = knob(_KINDS["causal"], "graph-causal: as offline_kinds", min=0.0, max=1.0, length=4)
+    smooth_kinds: list = knob(_KINDS["smooth"], "egograph smooth: as offline_kinds", min=0.0, max=1.0, length=4)
+    noisy_offline_kinds: list = knob(_KINDS["noisy_offline"], "offline_kinds of a noisy front-end", min=0.0, max=1.0,
+                                     length=4)
+    noisy_causal_kinds: list = knob(_KINDS["noisy_causal"], "causal_kinds of a noisy front-end", min=0.0, max=1.0,
+                                    length=4)
+    noisy_smooth_kinds: list = knob(_KINDS["smooth"], "smooth_kinds of a noisy front-end (smooth_kinds: as "
+                                                      "noisy_smooth_calibration, no tuning answers)",
+                                    min=0.0, max=1.0, length=4)
 
     def knots(self, family: str, scale: float) -> list:
-        """The calibration knots of tracker ``family`` (offline, causal, smooth) at detection noise
-        scale ``scale``."""
+        """The calibration knots of tracker ``family``'s stands (offline, causal, smooth) at detection
+        noise scale ``scale``."""
         return getattr(self, f"{'noisy_' if scale >= self.noisy_scale else ''}{family}_calibration")
+
+    def kinds(self, family: str, scale: float) -> list:
+        """The confidences of tracker ``family``'s answers of kinds unseen, hand, last, put_down (in
+        this order; egograph.track.answers.ANSWER_KINDS) at detection noise scale ``scale``."""
+        return getattr(self, f"{'noisy_' if scale >= self.noisy_scale else ''}{family}_kinds")
 
     def cross_check(self) -> None:
         for name in ("offline_calibration", "causal_calibration", "smooth_calibration", "noisy_offline_calibration",

@@ -45,7 +45,7 @@ import numpy as np
 from egograph.core.types import PositionInterval, TrackResult
 from egograph.core.units import TICKS_PER_SECOND
 from egograph.geometry.observations import Observations
-from egograph.track.answers import calibrated, offline_answers, operating_point, predictions
+from egograph.track.answers import confidences, offline_answers, operating_point, predictions
 from egograph.track.causal import causal_tracker
 from egograph.track.chain import chunk_index, solve_instance_offline
 from egograph.track.config import GraphConfig
@@ -271,8 +271,8 @@ def graph_tracker(obs: Observations, timestamps: Sequence[int], cfg: GraphConfig
         answers = {int(t): [] for t in t_frames}
         for s in solutions:
             if s.answers is not None:
-                xyz, raw = s.answers
-                predictions(s.instance, xyz, calibrated(raw, cfg.answers.knots("offline", scales[-1])), t_frames,
+                xyz, raw, kind = s.answers
+                predictions(s.instance, xyz, confidences(raw, kind, cfg.answers, "offline", scales[-1]), t_frames,
                             answers)
         answers = {t: sorted(p, key=lambda q: q.instance) for t, p in answers.items()}
         per_frame = operating_point(answers, cfg.answers)

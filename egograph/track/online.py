@@ -51,7 +51,7 @@ import numpy as np
 from egograph.core.types import PositionInterval, Prediction
 from egograph.core.units import TICKS_PER_SECOND
 from egograph.geometry.observations import Observations
-from egograph.track.answers import HAND_RAW, LAST_RAW
+from egograph.track.answers import HAND, HAND_RAW, LAST, LAST_RAW, PUT_DOWN, STAND, UNSEEN
 from egograph.track.config import GraphConfig
 from egograph.track.detection_factor import lengths
 from egograph.track.noise_scale import refit
@@ -244,7 +244,7 @@ class OnlineTracker:
         self._claim_xyz, self._claim_n, self._claim_on = np.zeros((0, 3)), np.zeros(0), np.zeros(0, bool)
         self._claim_row: dict[int, int] = {}
         self._claims_version = 0
-        self._calibration: tuple | None = None  # graph.answers.causal_calibration as arrays (_answer)
+        self._calibration: tuple | None = None  # graph.answers.causal_calibration/_kinds as arrays (_answer)
 
     # ------------------------------------------------------------------ the loop
 
@@ -656,59 +656,64 @@ class OnlineTracker:
     def _answer(self, inst: int, st: _Instance, state: int, next_kind: int | None, ts: int,
                 lead: float | None = None) -> Prediction | None:
         """The prediction of a state at frame time ``ts``, its score calibrated
-        (``graph.answers.causal_calibration``). With ``graph.answers.every_frame`` every frame is
+        (a stand: ``graph.answers.causal_calibration``; every other kind its confidence,
+        ``graph.answers.causal_kinds``). With ``graph.answers.every_frame`` every frame is
         answered (:meth:`_raw_answer`, else :meth:`_fallback_answer`); without, None where nothing is
         reported (below ``places.min_answer_probability``, carried, unseen before
         ``put_down_after_s``)."""
         every = self.cfg.answers.every_frame
         low = lead is not None and lead < self.cfg.places.min_answer_probability
-        pred = None if low and not every else self._raw_answer(inst, st, state, next_kind, ts, lead)
+        pred, kind = (None, STAND) if low and not every else self._raw_answer(inst, st, state, next_kind, ts, lead)
         if pred is None and every:
-            pred = self._fallback_answer(inst, st, state, ts)
+            pred, kind = self._fallback_answer(inst, st, state, ts)
         if pred is None:
             return None
         if every:  # the calibration knots as arrays once (this runs per instance and frame)
             if self._calibration is None or self._calibration[0] != self.scale:  # the scale fitted so far
                 knots = np.asarray(self.cfg.answers.knots("causal", self.scale), float)
-                self._calibration = (self.scale, np.ascontiguousarray(knots[:, 0]), np.ascontiguousarray(knots[:, 1]))
-            _, x, y = self._calibration
-            pred = Prediction(pred.instance, pred.xyz, min(max(float(np.interp(pred.score, x, y)), 0.0), 1.0))
+                self._calibration = (self.scale, np.ascontiguousarray(knots[:, 0]), np.ascontiguousarray(knots[:, 1]),
+                                     [0.0, *self.cfg.answers.kinds("causal", self.scale)])
+            _, x, y, fixed = self._calibration
+            score = float(np.interp(pred.score, x, y)) if kind == STAND else fixed[kind]
+            pred = Prediction(pred.instance, pred.xyz, min(max(score, 0.0), 1.0))
         return pred
 
-    def _fallback_answer(self, inst: int, st: _Instance, state: int, ts: int) -> Prediction | None:
-        """The answer where the chain reports nothing: carried, the hand's last position (raw 0);
-        unseen (standing at a place not among its places), the newest detection when it is newer
-        than every inlier of the place of the best stand score (that place is then left behind), else
-        that place (raw, both: that place's share of the frame's scores, halved), else the hand's
-        last position; with no place and no hand, the newest detection (raw ``LAST_RAW``)."""
+    def _fallback_answer(self, inst: int, st: _Instance, state: int, ts: int) -> tuple[Prediction | None, int]:
+        """The answer where the chain reports nothing, and its kind (egograph.track.answers): carried,
+        the hand's last position (HAND, raw 0); unseen (standing at a place not among its places),
+        the newest detection when it is newer than every inlier of the place of the best stand score
+        (that place is then left behind), else that place (UNSEEN; raw, both: that place's share of
+        the frame's scores, halved), else the hand's last position; with no place and no hand, the
+        newest detection (LAST, raw ``LAST_RAW``)."""
         kind = state_kind(state)
         held = [xyz for t, xyz in st.hands if t <= ts]
         if kind == -1 and held:
-            return Prediction(inst, tuple(float(v) for v in held[-1]), HAND_RAW)
+            return Prediction(inst, tuple(float(v) for v in held[-1]), HAND_RAW), HAND
         if kind == -2 and st.places:
             stands = st.delta[2::2][:len(st.places)]
             j = int(np.argmax(stands))
             share = 0.5 * float(np.exp(stands[j] - np.logaddexp.reduce(st.delta)))
             if st.last_xyz is not None and st.last_frame > st.places[j].last_frame:
-                return Prediction(inst, tuple(float(v) for v in st.last_xyz), share)
-            return Prediction(inst, st.places[j].xyz_tuple, share)
+                return Prediction(inst, tuple(float(v) for v in st.last_xyz), share), UNSEEN
+            return Prediction(inst, st.places[j].xyz_tuple, share), UNSEEN
         if held:
-            return Prediction(inst, tuple(float(v) for v in held[-1]), HAND_RAW)
+            return Prediction(inst, tuple(float(v) for v in held[-1]), HAND_RAW), HAND
         if st.last_xyz is not None:
-            return Prediction(inst, tuple(float(v) for v in st.last_xyz), LAST_RAW)
-        return None
+            return Prediction(inst, tuple(float(v) for v in st.last_xyz), LAST_RAW), LAST
+        return None, LAST
 
     def _raw_answer(self, inst: int, st: _Instance, state: int, next_kind: int | None, ts: int,
-                    lead: float | None) -> Prediction | None:
-        """The uncalibrated prediction of a state: a place's current centre; at a place not yet
-        seen, the place the sequence goes to next (lagged) or, ``put_down_after_s`` after the last
-        detection in hand, where the hand held the object; None otherwise."""
+                    lead: float | None) -> tuple[Prediction | None, int]:
+        """The uncalibrated prediction of a state and its kind (egograph.track.answers): a place's
+        current centre (STAND); at a place not yet seen, the place the sequence goes to next (lagged,
+        STAND) or, ``put_down_after_s`` after the last detection in hand, where the hand held the
+        object (PUT_DOWN); None otherwise."""
         kind = state_kind(state)
         if kind >= 0:
-            return self._place_prediction(inst, st, kind, lead)
+            return self._place_prediction(inst, st, kind, lead), STAND
         if kind == -2:
             if next_kind is not None and next_kind >= 0:
-                return self._place_prediction(inst, st, next_kind, lead)
+                return self._place_prediction(inst, st, next_kind, lead), STAND
             after = self.cfg.put_down_after_s
             if after > 0:
                 due = ts - after * TICKS_PER_SECOND
@@ -717,9 +722,9 @@ class OnlineTracker:
                 if held and last_held <= due:
                     if self.cfg.answers.every_frame and st.last_xyz is not None and st.last_ts > last_held:
                         # a detection since the hand let go: where it was put down (memory's rule)
-                        return Prediction(inst, tuple(float(v) for v in st.last_xyz), 0.1)
-                    return Prediction(inst, tuple(float(v) for v in held[-1]), 0.1)
-        return None
+                        return Prediction(inst, tuple(float(v) for v in st.last_xyz), 0.1), PUT_DOWN
+                    return Prediction(inst, tuple(float(v) for v in held[-1]), 0.1), PUT_DOWN
+        return None, STAND
 
     @staticmethod
     def _place_prediction(inst: int, st: _Instance, k: int, lead: float | None) -> Prediction:

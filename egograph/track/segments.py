@@ -63,7 +63,7 @@ class InstanceSolution:
     chain_segments: list | None = None  # offline: every segment of the chain, made (before any is dropped)
     places: list | None = None        # offline: the instance's places (egograph.track.places.Place)
     runs: list | None = None          # offline: the place chain's runs (egograph.track.places.PlaceRun)
-    answers: tuple | None = None      # offline: every frame's answer, (xyz (T, 3), raw confidence (T,)) (track.answers)
+    answers: tuple | None = None      # offline: every frame's answer, (xyz (T, 3), raw confidence (T,), kind (T,)) (track.answers)
 
 
 # --------------------------------------------------------------------------- stands

@@ -55,5 +55,7 @@ def smooth_predictions(rec, per_frame: Mapping[int, Sequence[Prediction]], cfg, 
     obs = predictions_to_observations(per_frame, rec.timestamps, rec.pv_poses, rec.pv_valid)
     g = dataclasses.replace(cfg, score_threshold=0.0, alias_rounds=0,  # and its own calibration of confidence
                             answers=dataclasses.replace(cfg.answers, offline_calibration=cfg.answers.smooth_calibration,
-                                                        noisy_offline_calibration=cfg.answers.noisy_smooth_calibration))
+                                                        noisy_offline_calibration=cfg.answers.noisy_smooth_calibration,
+                                                        offline_kinds=cfg.answers.smooth_kinds,
+                                                        noisy_offline_kinds=cfg.answers.noisy_smooth_kinds))
     return graph_tracker(obs, rec.timestamps, g, causal=causal, progress=progress)
