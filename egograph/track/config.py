@@ -182,9 +182,9 @@ _NOISY_CAUSAL_CALIBRATION = [[0.0, 0.1814], [0.457222, 0.1814], [0.647934, 0.246
     0.4855], [0.995108, 0.7334], [0.999431, 0.781], [0.999516, 0.8284], [1.0, 0.8284]]
 _SMOOTH_CALIBRATION = [[0.0, 0.2608], [0.259471, 0.2608], [0.491968, 0.5336], [0.499994, 0.6094], [1.0, 0.6094]]
 
-_KINDS = {"offline": [1.0, 0.0113, 0.25, 0.8674], "noisy_offline": [1.0, 0.1209, 0.0848, 0.5807],
+_KINDS = {"offline": [1.0, 0.0113, 0.25, 0.8672], "noisy_offline": [1.0, 0.1209, 0.0848, 0.5806],
           "causal": [0.0753, 0.1075, 0.9091, 0.6205], "noisy_causal": [0.1417, 0.0153, 0.0, 0.0292],
-          "smooth": [0.5578, 0.061, 0.39, 0.5578]}
+          "smooth": [0.5577, 0.061, 0.39, 0.5577]}
 
 
 @dataclass
@@ -196,13 +196,16 @@ class AnswersConfig(Checked):
     min_confidence: float = knob(0.35, "the operating point of the offline graph and of smooth: the per-frame files "
                                        "hold the answers of at least this confidence (answers.tsv holds every "
                                        "answer, for the precision-recall curves). On the tuning recordings (seeds "
-                                       "4-5, 900 frames, SVOE and MVPE pooled) the offline graph's P and R reach "
-                                       "every baseline's at every threshold from 0.05 to 0.65: 0.35 is the centre "
-                                       "(tools/bench_confidence.py --fit); egograph track/smooth --min-confidence "
-                                       "sets it and causal_min_confidence", min=0.0, max=1.0)
-    causal_min_confidence: float = knob(0.075, "the operating point of graph-causal (every lag), as min_confidence: "
-                                               "on the tuning recordings its P and R reach every baseline's from "
-                                               "0.05 to 0.1; 0.075 is the centre", min=0.0, max=1.0)
+                                       "4-8, 11, 12, 900 frames, SVOE and MVPE pooled) the offline graph's P and R "
+                                       "reach every baseline's at every threshold from 0 to 0.6, smooth's from 0.3 "
+                                       "to 0.55: 0.35 is in both (tools/bench_confidence.py --fit); egograph "
+                                       "track/smooth --min-confidence sets it and causal_min_confidence",
+                                 min=0.0, max=1.0)
+    causal_min_confidence: float = knob(0.01, "the operating point of graph-causal (every lag), as min_confidence: "
+                                              "on the tuning recordings its P and R reach every baseline's from 0 "
+                                              "to 0.02 only (SVOE recall at 1-1.5 m binds: above 0.02 the carried "
+                                              "and put-down answers of a noisy front-end drop out); 0.01 is the "
+                                              "centre", min=0.0, max=1.0)
     distance_m: float = knob(0.25, "the confidence is the probability that the answer lies within this distance "
                                    "of the truth (what the calibration below was fitted for), metres", gt=0.0)
     offline_calibration: list = knob(_OFFLINE_CALIBRATION,
