@@ -169,17 +169,16 @@ class PlacesConfig(Checked):
 
 
 # Calibration fitted on tuning seeds 4-8, 11, 12 (900 frames, SVOE and MVPE) by tools/bench_confidence.py
-# --fit (docs/bench/bench_confidence-fit.json): the stands' [raw, calibrated] knots (isotonic, blocks of at
-# least 5 % of the answers) and the other kinds' confidences (graph.answers below). A kind no tuning answer
-# has (offline: put_down; smooth: unseen, put_down) has the share of all the family's answers.
-_OFFLINE_CALIBRATION = [[0.0, 0.8808], [0.297993, 0.8808], [0.427151, 0.9719], [0.53888, 0.9857], [0.640276,
-    0.9894], [0.766419, 0.9907], [0.931662, 0.9964], [0.984748, 0.9983], [1.0, 0.9983]]
-_NOISY_OFFLINE_CALIBRATION = [[0.0, 0.3812], [0.275021, 0.3812], [0.430441, 0.5539], [0.52956, 0.8021], [0.66632,
-    0.9119], [1.0, 0.9119]]
+# --fit (docs/bench/bench_confidence-fit.json): the stands' [raw, calibrated] knots (isotonic, each block at
+# least 30 % of the answers offline, 5 % causal MVPE-like, 10 % causal SVOE-like: its MIN_SHARE) and the other
+# kinds' confidences (graph.answers below). A kind no tuning answer has (offline: put_down; smooth: unseen,
+# put_down) has the share of all the family's answers.
+_OFFLINE_CALIBRATION = [[0.0, 0.9386], [0.416925, 0.9386], [0.818042, 0.9934], [1.0, 0.9934]]
+_NOISY_OFFLINE_CALIBRATION = [[0.0, 0.4676], [0.352768, 0.4676], [0.547468, 0.8164], [1.0, 0.8164]]
 _CAUSAL_CALIBRATION = [[0.0, 0.2195], [0.692031, 0.2195], [0.996109, 0.9198], [0.999477, 0.9752], [0.999974, 0.991],
     [1.0, 0.991]]
-_NOISY_CAUSAL_CALIBRATION = [[0.0, 0.1814], [0.457222, 0.1814], [0.647934, 0.2467], [0.867372, 0.3393], [0.962096,
-    0.4855], [0.995108, 0.7334], [0.999431, 0.781], [0.999516, 0.8284], [1.0, 0.8284]]
+_NOISY_CAUSAL_CALIBRATION = [[0.0, 0.2196], [0.568677, 0.2196], [0.901202, 0.3915], [0.995108, 0.7334], [0.999431,
+    0.781], [0.999516, 0.8284], [1.0, 0.8284]]
 _SMOOTH_CALIBRATION = [[0.0, 0.2608], [0.259471, 0.2608], [0.491968, 0.5336], [0.499994, 0.6094], [1.0, 0.6094]]
 
 _KINDS = {"offline": [1.0, 0.0113, 0.25, 0.8672], "noisy_offline": [1.0, 0.1209, 0.0848, 0.5806],
