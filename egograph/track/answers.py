@@ -4,7 +4,8 @@ The graph trackers answer, for every PV frame from an instance's enrollment on, 
 where it is: a stand at a place, the hand while it is carried, the most probable place while it is
 unseen; and as the score (the fifth column of the per-frame files) the probability that this answer
 lies within ``graph.answers.distance_m`` of the truth, as the IT3DEgo evaluator counts it (a frame
-of a carry has no true interval, so an answer there is never within: its confidence is low).
+of a true carry has no true interval, so an answer there is never within: an answer at the hand is
+right only where the tracker's "carried" is wrong, and its confidence is low).
 
 Each answer has a *kind* (``ANSWER_KINDS``): a stand at a place, the place where it was last seen
 while unseen, the hand while carried, the newest detection of an instance with no place, where the
@@ -15,8 +16,8 @@ monotone knots fitted on tuning recordings (isotonic regression, ``tools/bench_c
 every other kind's raw value says nothing about how often it is right (a constant, or a share of a
 state the answer is not at), so each kind has its own fitted confidence (the share of such answers
 within the distance on the tuning recordings): :func:`confidences`. Without the split, one
-monotone map over all kinds pooled the often-right answers of an instance with no place with the
-never-right hand's, and the held-out error came from such bins.
+monotone map over all kinds pooled kinds right at very different rates (an instance with no place
+answering its nearest detection with the hand's answers; docs/experiments.md, issue 41).
 :func:`operating_point` keeps the answers of at least ``min_confidence`` (graph-causal:
 ``causal_min_confidence``): what the per-frame files hold. World frame, metres; PV frame indices.
 """
