@@ -131,6 +131,31 @@ def test_crops_reach_the_encoder_in_one_colour_order_and_channel_count(pair):
         as_rgb(rgb, "hsv")
 
 
+def test_verification_sees_one_colour_order_and_channel_count(pair):
+    """The verification's entry point converts as the encoder's does: RGBA and BGR (with
+    order='bgr') give the RGB crop's keypoints, descriptors and colour histogram; a grey crop is
+    that of its three-channel copy; a BGR crop passed as RGB swaps red and blue in the histogram (why
+    the order must be said); float and two-channel images are refused naming what was given."""
+    rgb = pair[0][295:370, 330:410].copy()          # the engine cover: keypoints and colour
+    v = Verifier(FrontendConfig())
+    want = v.features(rgb)
+    assert want.n >= 8
+    for got in (v.features(rgb[:, :, ::-1].copy(), "bgr"),
+                v.features(np.dstack([rgb, np.full(rgb.shape[:2], 255, np.uint8)]))):
+        assert np.array_equal(got.xy, want.xy) and np.array_equal(got.desc, want.desc)
+        assert np.array_equal(got.hist, want.hist)
+    grey = cv2.cvtColor(rgb, cv2.COLOR_RGB2GRAY)
+    g, g3 = v.features(grey), v.features(np.dstack([grey] * 3))
+    assert np.array_equal(g.desc, g3.desc) and np.array_equal(g.hist, g3.hist)
+    red = np.zeros((60, 60, 3), np.uint8)
+    red[..., 0] = 200
+    assert not np.array_equal(v.features(red).hist, v.features(red, "bgr").hist)
+    with pytest.raises(ValueError, match="verification image: dtype float64"):
+        v.features(rgb / 255.0)
+    with pytest.raises(ValueError, match=r"verification image: shape \(75, 80, 2\)"):
+        v.features(rgb[:, :, :2])
+
+
 def test_objectness_does_not_prefer_size():
     """A plain patch on a contrasting background scores the same at any size; a patch the colour
     of its background scores 0."""

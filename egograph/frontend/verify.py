@@ -51,9 +51,11 @@ class LocalFeatures:
 
 def colour_histogram(rgb: np.ndarray, bins: tuple[int, int] = (12, 4)) -> np.ndarray:
     """Hue x saturation histogram (sums to 1) of the pixels with some saturation and brightness
-    (grey pixels carry no hue), plus one bin for the grey ones."""
+    (grey pixels carry no hue), plus one bin for the grey ones; ``rgb`` uint8 RGB (grey and RGBA
+    converted, anything else refused: a BGR image would swap red and blue hues)."""
     import cv2
 
+    rgb = as_rgb(rgb, what="colour histogram image")
     hsv = cv2.cvtColor(rgb, cv2.COLOR_RGB2HSV).reshape(-1, 3).astype(np.int32)
     grey = (hsv[:, 1] < 40) | (hsv[:, 2] < 40)
     h = np.minimum(hsv[~grey, 0] * bins[0] // 180, bins[0] - 1)
@@ -74,12 +76,14 @@ class Verifier:
         self.sift = cv2.SIFT_create(nfeatures=cfg.verify_max_keypoints)
         self.matcher = cv2.BFMatcher(cv2.NORM_L2)
 
-    def features(self, rgb: np.ndarray) -> LocalFeatures:
-        """RootSIFT of ``rgb`` (uint8 RGB) resampled so that its longer side is ``verify_side_px``
+    def features(self, rgb: np.ndarray, order: str = "rgb") -> LocalFeatures:
+        """RootSIFT of ``rgb`` (uint8 RGB, or BGR with ``order`` 'bgr'; grey and RGBA converted, anything
+        else refused by :func:`~egograph.frontend.encoder.as_rgb`: the colour histogram must see
+        the colours the enrollment's did) resampled so that its longer side is ``verify_side_px``
         (small crops are enlarged: SIFT's finest octave needs a few pixels per feature)."""
         import cv2
 
-        rgb = as_rgb(rgb)
+        rgb = as_rgb(rgb, order, "verification image")
         rows, cols = rgb.shape[:2]
         f = self.cfg.verify_side_px / max(rows, cols)
         img = cv2.resize(rgb, (max(1, round(cols * f)), max(1, round(rows * f))),
