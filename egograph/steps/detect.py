@@ -441,12 +441,14 @@ class FrameDetector:
 
 def proposal_embeddings_key(rec: Recording, cfg, encoder, source_name: str) -> str:
     """What a frame's proposals and their embeddings depend on: the recording (poses included), the
-    front-end knobs that shape proposals and crops, the encoder and the proposal source."""
+    front-end knobs that shape proposals and crops (not matching's nor verification's), the encoder
+    and the proposal source."""
     f = to_dict(cfg.frontend)
     matching = ("similarity_threshold", "whiten", "whiten_threshold", "whiten_shrink", "whiten_frames", "exclusive",
                 "mvpe_pooling", "mvpe_max_photos", "mvpe_autocrop", "svoe_augment", "guidance_radius_px")
     return outputs.digest("proposal-embeddings", outputs.recording_digest(rec), encoder_id(cfg, encoder), source_name,
-                          {k: v for k, v in f.items() if k not in matching}, to_dict(cfg.io))
+                          {k: v for k, v in f.items() if k not in matching and not k.startswith("verify")},
+                          to_dict(cfg.io))
 
 
 def load_proposal_embeddings(path: str | Path, key: str) -> dict[int, tuple[list, np.ndarray]] | None:
