@@ -194,3 +194,21 @@ def test_fallback_model_sees_no_local_features():
     assert x.shape == (1, len(FEATURES))
     assert fallback_rows(x).tolist() == [[0.7, 0.1, 0.3, 0.5]]
     assert probability(np.zeros((1, 2)), [0.0, 1.0, 1.0])[0] == pytest.approx(0.5)
+
+
+def test_calibration_map_and_one_instance_per_proposal():
+    """calibrate: [0, 1, 0] is the identity, a fitted map moves textured and fallback crops apart and
+    keeps their order; owned: a shortlisted proposal counts for the instance it most probably shows
+    only, an unlisted pair never."""
+    from egograph.frontend.verify import calibrate, owned
+
+    p = np.array([0.01, 0.2, 0.5, 0.9])
+    assert np.allclose(calibrate(p, np.ones(4, bool), [0.0, 1.0, 0.0]), p)
+    tex, fb = calibrate(p, np.ones(4, bool), [-1.0, 0.5, 2.0]), calibrate(p, np.zeros(4, bool), [-1.0, 0.5, 2.0])
+    assert (np.diff(tex) > 0).all() and (np.diff(fb) > 0).all() and (tex > fb).all()
+    prob = np.array([[0.6, 0.3, 0.9], [0.5, 0.4, 0.1]])
+    listed = np.array([[True, True, False], [True, True, True]])
+    m = owned(prob, listed)
+    assert m[0, 0] == 0.6 and m[1, 1] == 0.4            # proposal 0 is instance 0's, proposal 1 instance 1's
+    assert np.isneginf(m[1, 0]) and np.isneginf(m[0, 1])
+    assert np.isneginf(m[0, 2]) and m[1, 2] == 0.1       # instance 0 did not shortlist proposal 2

@@ -179,6 +179,13 @@ class FrontendConfig(Checked):
     verify_side_px: int = knob(160, "verification: crops and enrollment views are resampled so that their longer "
                                     "side is this many pixels before SIFT (small crops enlarged)", min=32)
     verify_max_keypoints: int = knob(300, "verification: most SIFT keypoints per crop or view", min=8)
+    verify_stretch: bool = knob(True, "verification: each crop's and view's grey levels are stretched over 0-255 (1-99 "
+                                      "percentile) before SIFT, whose contrast threshold is absolute: on the dark, "
+                                      "low-contrast crops of the device-like world (tuning seed 27, true boxes of every "
+                                      "10th frame) the median crop had 0 keypoints, 3 stretched")
+    verify_contrast: float = knob(0.04, "verification: SIFT's contrast threshold (OpenCV's contrastThreshold; lower: more "
+                                        "keypoints on faint print, and on noise). Stretched crops as for verify_stretch: "
+                                        "median keypoints 3 at 0.04, 14 at 0.02, 53 at 0.01", gt=0.0)
     verify_max_views: int = knob(12, "verification: most enrollment views per instance verified against "
                                      "(evenly spread over its photos; SVOE has 4)", min=1)
     verify_ratio: float = knob(0.8, "verification: Lowe's ratio test, nearest over second-nearest descriptor "
@@ -204,6 +211,12 @@ class FrontendConfig(Checked):
                                       "whitened, colour] (fitted as verify_coef_svoe, on every pair)", length=5)
     verify_fallback_mvpe: list = knob([-6.9517, 6.5404, 4.8738, 0.0, 1.7001],
                                       "verification, MVPE crops without keypoints: as verify_fallback_svoe", length=5)
+
+    verify_calib_svoe: list = knob([0.0, 1.0, 0.0], "verification, SVOE: the map from the pair model's probability "
+                                   "to the emitted one, [a, b, c] in sigmoid(a + b logit(p) + c textured) "
+                                   "(egograph.frontend.verify.calibrate), fitted on each instance's most probable "
+                                   "proposal per frame; [0, 1, 0] = the pair model's probability", length=3)
+    verify_calib_mvpe: list = knob([0.0, 1.0, 0.0], "verification, MVPE: as verify_calib_svoe", length=3)
 
     def proposals_for(self, enroll: str) -> str:
         """The proposal source of an enrollment (``svoe`` | ``mvpe``): ``mvpe_proposals`` for MVPE
