@@ -124,14 +124,18 @@ def candidates(d: dict, score: np.ndarray) -> np.ndarray:
     return np.array(sorted(out), np.int64)
 
 
-def fit_stages(d: dict, top_k: int, c: float):
-    """(pair model full, fallback, calibration map) fitted on the pairs of ``d`` within ``top_k``."""
+def fit_stages(d: dict, top_k: int, c: float, pair_model=None):
+    """(pair model full, fallback, calibration map) fitted on the pairs of ``d`` within ``top_k``;
+    with ``pair_model`` (full, fallback) given, only the calibration map is fitted."""
     from egograph.frontend.verify import fallback_rows
 
     s = {k: v[d["rank"] < top_k] for k, v in d.items()}
     t = s["textured"]
-    full = fit(s["x"][t], s["own"][t], c)
-    fb = fit(fallback_rows(s["x"]), s["own"], c)
+    if pair_model is not None:
+        full, fb = pair_model
+    else:
+        full = fit(s["x"][t], s["own"][t], c)
+        fb = fit(fallback_rows(s["x"]), s["own"], c)
     if fb is None:
         raise SystemExit(f"only one label among {len(t)} shortlisted pairs: nothing to fit")
     p = pair_probability(s, full, fb)
@@ -170,6 +174,8 @@ def main() -> None:
     ap.add_argument("--sets", nargs="+", default=["svoe", "mvpe"], choices=["svoe", "mvpe"])
     ap.add_argument("--stride", type=int, default=1, help="every this many PV frames (the machine is shared)")
     ap.add_argument("--c", type=float, default=1.0, help="inverse L2 regularisation strength of the pair model")
+    ap.add_argument("--calibration-only", action="store_true",
+                    help="keep the configured pair model (verify_coef_*, verify_fallback_*), fit the calibration map only")
     ap.add_argument("--from-collected", action="store_true",
                     help="refit on the pairs the last run saved in the cache (no detection)")
     ap.add_argument("--set", dest="overrides", action="append", default=[], metavar="KEY=VALUE")
@@ -210,12 +216,14 @@ def main() -> None:
             n_visible = np.array(n_visible)
             np.savez(saved, visible=n_visible, **d)
         # cross-validation over the recordings
+        keep_pair = ((fc.verify_coef_svoe, fc.verify_fallback_svoe) if det_set == "svoe" else
+                     (fc.verify_coef_mvpe, fc.verify_fallback_mvpe)) if args.calibration_only else None
         recs = np.unique(d["rec"])
         ps, ys, n_true, n_emit, found, conf = [], [], 0, 0, 0, 0
         for r in recs:
             train = {k: v[d["rec"] != r] for k, v in d.items()}
             test = {k: v[d["rec"] == r] for k, v in d.items()}
-            full, fb, calib, _ = fit_stages(train, fc.verify_top_k, args.c)
+            full, fb, calib, _ = fit_stages(train, fc.verify_top_k, args.c, keep_pair)
             test = {k: v[test["rank"] < fc.verify_top_k] for k, v in test.items()}
             keep, q = emitted(test, (full, fb, calib), fc.verify_threshold)
             ps.append(q)
@@ -226,7 +234,7 @@ def main() -> None:
                                                               test["own"][keep]) if o})
             conf += int((test["other"][keep] & ~test["own"][keep]).sum())
         p, y = np.concatenate(ps), np.concatenate(ys)
-        full, fb, calib, s = fit_stages(d, fc.verify_top_k, args.c)
+        full, fb, calib, s = fit_stages(d, fc.verify_top_k, args.c, keep_pair)
         print(f"\n{det_set}: {len(s['own'])} shortlisted pairs (top {fc.verify_top_k}; {int(s['textured'].sum())} with "
               f"keypoints), {s['own'].mean():.3f} true; {int(n_visible.sum())} visible instance-frames")
         print(f"  cross-validated over {len(recs)} recordings at verify_threshold {fc.verify_threshold}: {n_emit} "
