@@ -175,7 +175,8 @@ def main() -> None:
     ap.add_argument("--stride", type=int, default=1, help="every this many PV frames (the machine is shared)")
     ap.add_argument("--c", type=float, default=1.0, help="inverse L2 regularisation strength of the pair model")
     ap.add_argument("--calibration-only", action="store_true",
-                    help="keep the configured pair model (verify_coef_*, verify_fallback_*), fit the calibration map only")
+                    help="keep the configured pair model (verify_coef_*, verify_fallback_*), fit the "
+                         "calibration map only")
     ap.add_argument("--from-collected", action="store_true",
                     help="refit on the pairs the last run saved in the cache (no detection)")
     ap.add_argument("--set", dest="overrides", action="append", default=[], metavar="KEY=VALUE")

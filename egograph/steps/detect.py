@@ -277,8 +277,9 @@ class FrameDetector:
         for inst, ims in images.items():
             pick_ = np.unique(np.linspace(0, len(ims) - 1, min(len(ims), self.cfg.verify_max_views)).round().astype(int))
             self.verify_views[inst] = [self.verifier.features(ims[k]) for k in pick_]
-        self.coef = (self.cfg.verify_coef_svoe, self.cfg.verify_fallback_svoe, self.cfg.verify_calib_svoe) \
-            if enroll == "svoe" else (self.cfg.verify_coef_mvpe, self.cfg.verify_fallback_mvpe, self.cfg.verify_calib_mvpe)
+        c = self.cfg   # (pair model, its fallback, calibration map) of the enrollment
+        self.coef = (c.verify_coef_svoe, c.verify_fallback_svoe, c.verify_calib_svoe) if enroll == "svoe" else \
+            (c.verify_coef_mvpe, c.verify_fallback_mvpe, c.verify_calib_mvpe)
         self.report.seconds["verify"] = self.report.seconds.get("verify", 0.0) + time.perf_counter() - t0
 
     def _verified_rows(self, i, rgb, kept, boxes, plain, white, guides) -> list:
