@@ -226,7 +226,7 @@ class FrontendConfig(Checked):
                                    "(egograph.frontend.verify.calibrate), fitted on each instance's most probable "
                                    "proposal per frame; [0, 1, 0] = the pair model's probability. Fitted by "
                                    "tools/fit_verify.py --calibration-only on the device-like tuning recordings 27-28 "
-                                   "(300 frames, every frame; the pair model kept: refitted on these two recordings "
+                                   "(300 frames, every frame, verify_max_keypoints 300; the pair model kept: refitted on these two recordings "
                                    "it found fewer instance-frames cross-validated, 28 against 30 at threshold 0.2, "
                                    "with 2 confusions against 0)", length=3)
     verify_calib_mvpe: list = knob([0.0, 1.0, 0.0], "verification, MVPE: as verify_calib_svoe", length=3)
