@@ -20,8 +20,8 @@ from egograph.frontend.config import FrontendConfig  # noqa: E402
 from egograph.frontend.encoder import Preprocess, as_rgb  # noqa: E402
 from egograph.frontend.matching import crop  # noqa: E402
 from egograph.frontend.proposals import ImageProposals, integral_lab, iou, objectness  # noqa: E402
-from egograph.frontend.verify import (FEATURES, Verifier, expected_calibration_error, fallback_rows,  # noqa: E402
-                                      feature_rows, probability, textured)
+from egograph.frontend.verify import (FEATURES, Verifier, calibrate, expected_calibration_error,  # noqa: E402
+                                      fallback_rows, feature_rows, probability, textured)
 
 # objects of the left view (x1, y1, x2, y2; pixels of the 741 x 500 image), each with texture
 OBJECTS = {"oil bottle": (395, 50, 425, 98), "headlight": (505, 92, 568, 192), "front wheel": (505, 285, 690, 455),
@@ -75,8 +75,10 @@ def test_verification_finds_the_object_in_the_other_view_and_rejects_every_other
     the right one: the most inliers, spread over the crop, well ahead of every other proposal of its
     size over the scene (tens to hundreds, parts of the object among them); and the calibrated
     probability (the embedded encoder's cosine, the verification, the colour; the fitted SVOE
-    coefficients) passes it and rejects every other proposal (the paper's cosine gate alone, 0.6,
-    passes 3-8 other proposals of the oil bottle, the headlight and the front wheel)."""
+    pair model and calibration map) passes it and rejects every other proposal (the paper's cosine gate alone, 0.6,
+    passes 3-8 other proposals of the oil bottle, the headlight and the front wheel). The oil bottle is
+    under ``verify_min_side_px`` in the other view: the fallback model scores it, below the threshold
+    (on the device-like tuning recordings such crops were rarely the instance), and nothing else passes."""
     left, right, disp = pair
     cfg = FrontendConfig()
     box = OBJECTS[name]
@@ -96,8 +98,13 @@ def test_verification_finds_the_object_in_the_other_view_and_rejects_every_other
     n = len(props)
     x = feature_rows(cos, np.zeros(n), np.zeros(n), inliers, np.array([e[1] for e in ev]), inliers,
                      np.array([e[2] for e in ev]))
-    p = probability(x, cfg.verify_coef_svoe)
-    assert p[0] >= cfg.verify_threshold and int(np.argmax(p)) == 0
+    tex = np.array([textured(v.features(c), c.shape, cfg) for c in crops])
+    pair = np.where(tex, probability(x, cfg.verify_coef_svoe), probability(fallback_rows(x), cfg.verify_fallback_svoe))
+    p = calibrate(pair, tex, cfg.verify_calib_svoe)        # as egograph detect emits it
+    if name == "oil bottle":   # 24 x 38 px here: under verify_min_side_px, scored without its local features
+        assert not tex[0]
+    else:
+        assert tex[0] and p[0] >= cfg.verify_threshold and int(np.argmax(p)) == 0
     assert (p[1:] < cfg.verify_threshold).all(), f"{name}: {int((p[1:] >= cfg.verify_threshold).sum())} others pass"
 
 
@@ -129,6 +136,31 @@ def test_crops_reach_the_encoder_in_one_colour_order_and_channel_count(pair):
         pre([rgb[:, :, :2]])
     with pytest.raises(ValueError, match="colour order 'hsv'"):
         as_rgb(rgb, "hsv")
+
+
+def test_verification_sees_one_colour_order_and_channel_count(pair):
+    """The verification's entry point converts as the encoder's does: RGBA and BGR (with
+    order='bgr') give the RGB crop's keypoints, descriptors and colour histogram; a grey crop is
+    that of its three-channel copy; a BGR crop passed as RGB swaps red and blue in the histogram (why
+    the order must be said); float and two-channel images are refused naming what was given."""
+    rgb = pair[0][295:370, 330:410].copy()          # the engine cover: keypoints and colour
+    v = Verifier(FrontendConfig())
+    want = v.features(rgb)
+    assert want.n >= 8
+    for got in (v.features(rgb[:, :, ::-1].copy(), "bgr"),
+                v.features(np.dstack([rgb, np.full(rgb.shape[:2], 255, np.uint8)]))):
+        assert np.array_equal(got.xy, want.xy) and np.array_equal(got.desc, want.desc)
+        assert np.array_equal(got.hist, want.hist)
+    grey = cv2.cvtColor(rgb, cv2.COLOR_RGB2GRAY)
+    g, g3 = v.features(grey), v.features(np.dstack([grey] * 3))
+    assert np.array_equal(g.desc, g3.desc) and np.array_equal(g.hist, g3.hist)
+    red = np.zeros((60, 60, 3), np.uint8)
+    red[..., 0] = 200
+    assert not np.array_equal(v.features(red).hist, v.features(red, "bgr").hist)
+    with pytest.raises(ValueError, match="verification image: dtype float64"):
+        v.features(rgb / 255.0)
+    with pytest.raises(ValueError, match=r"verification image: shape \(75, 80, 2\)"):
+        v.features(rgb[:, :, :2])
 
 
 def test_objectness_does_not_prefer_size():
@@ -169,3 +201,21 @@ def test_fallback_model_sees_no_local_features():
     assert x.shape == (1, len(FEATURES))
     assert fallback_rows(x).tolist() == [[0.7, 0.1, 0.3, 0.5]]
     assert probability(np.zeros((1, 2)), [0.0, 1.0, 1.0])[0] == pytest.approx(0.5)
+
+
+def test_calibration_map_and_one_instance_per_proposal():
+    """calibrate: [0, 1, 0] is the identity, a fitted map moves textured and fallback crops apart and
+    keeps their order; owned: a shortlisted proposal counts for the instance it most probably shows
+    only, an unlisted pair never."""
+    from egograph.frontend.verify import calibrate, owned
+
+    p = np.array([0.01, 0.2, 0.5, 0.9])
+    assert np.allclose(calibrate(p, np.ones(4, bool), [0.0, 1.0, 0.0]), p)
+    tex, fb = calibrate(p, np.ones(4, bool), [-1.0, 0.5, 2.0]), calibrate(p, np.zeros(4, bool), [-1.0, 0.5, 2.0])
+    assert (np.diff(tex) > 0).all() and (np.diff(fb) > 0).all() and (tex > fb).all()
+    prob = np.array([[0.6, 0.3, 0.9], [0.5, 0.4, 0.1]])
+    listed = np.array([[True, True, False], [True, True, True]])
+    m = owned(prob, listed)
+    assert m[0, 0] == 0.6 and m[1, 1] == 0.4            # proposal 0 is instance 0's, proposal 1 instance 1's
+    assert np.isneginf(m[1, 0]) and np.isneginf(m[0, 1])
+    assert np.isneginf(m[0, 2]) and m[1, 2] == 0.1       # instance 0 did not shortlist proposal 2

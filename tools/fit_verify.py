@@ -1,16 +1,28 @@
 #!/usr/bin/env python
-"""Fit the verification's logistic coefficients (``frontend.verify_coef_*``, ``verify_fallback_*``)
-on tuning RGB recordings, and print them as configuration.
+"""Fit the verification's score (``frontend.verify_coef_*``, ``verify_fallback_*``, ``verify_calib_*``)
+on tuning RGB recordings, print it as configuration, and its calibration error by cross-validation
+over the recordings.
 
-    .venv/bin/python tools/fit_verify.py --seeds 27 28 --frames 500 --stride 5 [--sets svoe mvpe] [--set KEY=VALUE]
+    .venv/bin/python tools/fit_verify.py --seeds 27 28 --frames 300 --stride 1 --synth-config device-svoe \\
+        [--sets svoe mvpe] [--set KEY=VALUE] [--from-collected]
 
-Each recording (egograph.synth.benchset.rgb_benchmark_set, cached as tools/bench_frontend_trackers.py
-caches them) runs ``egograph detect`` with verification on, collecting every shortlisted
-(proposal, instance) pair's features (egograph.frontend.verify.FEATURES). A pair is labelled true
-when the box is on the instance as the benchmarks count it: the instance at least a quarter visible
-and IoU >= 0.3 with its true box or the box centre inside it. One L2-regularised logistic regression
-per set for the crops with keypoints, one on the fallback features for the others. Prints the
-training ECE and the share of true pairs; the held-out ECE is tools/bench_verify.py's.
+Each recording (egograph.synth.benchset.rgb_benchmark_set of ``--synth-config``, cached under
+``--cache``) runs ``egograph detect`` with verification on, collecting every shortlisted (proposal,
+instance) pair's features (egograph.frontend.verify.FEATURES). A pair is labelled true when the box is
+on the instance as the benchmarks count it: the instance at least a quarter visible and IoU >= 0.3
+with its true box or the box centre inside it. Two stages, both L2-regularised logistic regressions:
+
+1. the pair model, on every shortlisted pair: one on the crops with keypoints, one on the fallback
+   features (every pair: the more data, the steadier);
+2. the calibration map (egograph.frontend.verify.calibrate), on each instance's most probable owned
+   proposal per frame (the detections, before the threshold) by the pair model of stage 1.
+
+Cross-validation: each recording is scored by the two stages fitted on the others, the detections
+selected as ``egograph detect`` selects them (``verify_top_k``, ``verify_threshold``, one instance per
+proposal); prints their calibration error (ECE), how many are on the instance and how many
+instance-frames they find. The printed coefficients are fitted on every recording. The collected
+pairs are saved (``fit_verify_<set>.npz`` in the cache) so that ``--from-collected`` refits without
+detecting.
 """
 
 from __future__ import annotations
@@ -25,82 +37,214 @@ import numpy as np
 REPO = Path(__file__).resolve().parents[1]
 
 
-def label_pairs(rec, collected: list) -> np.ndarray:
-    """Whether each collected (frame, instance, box, ...) is on its instance (see module doc)."""
+def box_hits(box, true_boxes: np.ndarray, visible: np.ndarray) -> np.ndarray:
+    """(K,) whether ``box`` (x1, y1, x2, y2, PV pixels) is on each instance: at least a quarter visible,
+    and IoU >= 0.3 with its true box or the box centre inside it."""
+    b = np.asarray(box, float)
+    ok = np.isfinite(true_boxes[:, 0]) & (visible >= 0.25)
+    t = np.nan_to_num(true_boxes.astype(float))
+    w = np.clip(np.minimum(b[2], t[:, 2]) - np.maximum(b[0], t[:, 0]), 0, None)
+    h = np.clip(np.minimum(b[3], t[:, 3]) - np.maximum(b[1], t[:, 1]), 0, None)
+    inter = w * h
+    union = (b[2] - b[0]) * (b[3] - b[1]) + (t[:, 2] - t[:, 0]) * (t[:, 3] - t[:, 1]) - inter
+    iou = np.where(union > 0, inter / np.maximum(union, 1e-12), 0.0)
+    cx, cy = (b[0] + b[2]) / 2, (b[1] + b[3]) / 2
+    inside = (t[:, 0] <= cx) & (cx <= t[:, 2]) & (t[:, 1] <= cy) & (cy <= t[:, 3])
+    return ok & ((iou >= 0.3) | inside)
+
+
+def collected_arrays(rec, got: list, rec_id: int) -> dict[str, np.ndarray]:
+    """The collected pairs of one recording as arrays: recording, frame, instance, box, textured,
+    features, rank in the instance's shortlist (pairs arrive in rank order), on the instance (``own``),
+    on another instance (``other``); plus, per frame processed, the visible instances."""
     with np.load(rec.synth_gt_dir / "instances.npz") as gt:
         boxes, visible = gt["boxes"], gt["visible"]
-    out = np.zeros(len(collected), bool)
-    for n, (i, inst, box, *_rest) in enumerate(collected):
-        if inst >= boxes.shape[1] or visible[i, inst] < 0.25 or not np.isfinite(boxes[i, inst, 0]):
-            continue
-        tb = boxes[i, inst]
-        out[n] = box_iou(box, tb) >= 0.3 or (tb[0] <= (box[0] + box[2]) / 2 <= tb[2] and tb[1] <= (box[1] + box[3]) / 2 <= tb[3])
-    return out
+    frame = np.array([g[0] for g in got], np.int64)
+    inst = np.array([g[1] for g in got], np.int64)
+    rank = np.zeros(len(got), np.int64)
+    for n in range(1, len(got)):
+        rank[n] = rank[n - 1] + 1 if (frame[n], inst[n]) == (frame[n - 1], inst[n - 1]) else 0
+    own, other = np.zeros(len(got), bool), np.zeros(len(got), bool)
+    for n, g in enumerate(got):
+        h = box_hits(g[2], boxes[g[0]], visible[g[0]])
+        own[n] = g[1] < len(h) and bool(h[g[1]])
+        other[n] = bool(np.delete(h, g[1]).any()) if g[1] < len(h) else bool(h.any())
+    return {"rec": np.full(len(got), rec_id), "frame": frame, "instance": inst,
+            "box": np.array([g[2] for g in got], float).reshape(-1, 4), "textured": np.array([g[3] for g in got], bool),
+            "x": np.stack([g[4] for g in got]) if got else np.zeros((0, 7)), "rank": rank, "own": own, "other": other}
 
 
-def box_iou(a, b) -> float:
-    ix = max(0.0, min(a[2], b[2]) - max(a[0], b[0]))
-    iy = max(0.0, min(a[3], b[3]) - max(a[1], b[1]))
-    inter = ix * iy
-    union = (a[2] - a[0]) * (a[3] - a[1]) + (b[2] - b[0]) * (b[3] - b[1]) - inter
-    return inter / union if union > 0 else 0.0
+def visible_frames(rec, frames) -> int:
+    """Instance-frames at least a quarter visible with a true box among ``frames``."""
+    with np.load(rec.synth_gt_dir / "instances.npz") as gt:
+        vis = (gt["visible"] >= 0.25) & np.isfinite(gt["boxes"][..., 0])
+    return int(vis[list(frames)].sum())
 
 
-def fit(x: np.ndarray, y: np.ndarray, c: float) -> list[float]:
-    """[bias, weights...] of an L2-regularised logistic regression (scikit-learn, lbfgs)."""
+def fit(x: np.ndarray, y: np.ndarray, c: float) -> list[float] | None:
+    """[bias, weights...] of an L2-regularised logistic regression (scikit-learn, lbfgs); None when
+    ``y`` holds one label only."""
     from sklearn.linear_model import LogisticRegression
 
     if len(np.unique(y)) < 2:
-        raise SystemExit(f"only one label among {len(y)} pairs: nothing to fit")
-    m = LogisticRegression(C=c, max_iter=2000).fit(x, y)
+        return None
+    m = LogisticRegression(C=c, max_iter=5000).fit(x, y)
     return [round(float(m.intercept_[0]), 4), *(round(float(w), 4) for w in m.coef_[0])]
+
+
+def pair_probability(d: dict, full, fallback) -> np.ndarray:
+    from egograph.frontend.verify import fallback_rows, probability
+
+    pf = probability(fallback_rows(d["x"]), fallback)
+    return pf if full is None else np.where(d["textured"], probability(d["x"], full), pf)
+
+
+def candidates(d: dict, score: np.ndarray) -> np.ndarray:
+    """Indices of the pairs ``egograph detect`` would emit at threshold 0: per frame, one instance per
+    proposal (the most probable), per instance its most probable owned proposal."""
+    from egograph.frontend.verify import owned
+
+    out = []
+    keys = np.column_stack([d["rec"], d["frame"]])
+    order = np.lexsort((d["frame"], d["rec"]))
+    cuts = np.flatnonzero(np.any(np.diff(keys[order], axis=0) != 0, axis=1)) + 1
+    for rows in np.split(order, cuts) if len(order) else []:
+        insts = np.unique(d["instance"][rows])
+        _, prop = np.unique(d["box"][rows].round(3), axis=0, return_inverse=True)
+        prop = prop.ravel()
+        prob = np.zeros((len(insts), prop.max() + 1))
+        listed = np.zeros_like(prob, bool)
+        where = {}
+        for r, k, p in zip(rows, np.searchsorted(insts, d["instance"][rows]), prop):
+            prob[k, p], listed[k, p], where[(k, p)] = score[r], True, r
+        mine = owned(prob, listed)
+        for k in range(len(insts)):
+            if np.isfinite(mine[k]).any():
+                out.append(where[(k, int(np.argmax(mine[k])))])
+    return np.array(sorted(out), np.int64)
+
+
+def fit_stages(d: dict, top_k: int, c: float, pair_model=None):
+    """(pair model full, fallback, calibration map) fitted on the pairs of ``d`` within ``top_k``;
+    with ``pair_model`` (full, fallback) given, only the calibration map is fitted."""
+    from egograph.frontend.verify import fallback_rows
+
+    s = {k: v[d["rank"] < top_k] for k, v in d.items()}
+    t = s["textured"]
+    if pair_model is not None:
+        full, fb = pair_model
+    else:
+        full = fit(s["x"][t], s["own"][t], c)
+        fb = fit(fallback_rows(s["x"]), s["own"], c)
+    if fb is None:
+        raise SystemExit(f"only one label among {len(t)} shortlisted pairs: nothing to fit")
+    p = pair_probability(s, full, fb)
+    cand = candidates(s, p)
+    calib = calibration(p[cand], s["textured"][cand], s["own"][cand])
+    return full, fb, calib, s
+
+
+def calibration(p: np.ndarray, textured: np.ndarray, y: np.ndarray) -> list[float]:
+    """[a, b, c] of :func:`egograph.frontend.verify.calibrate`, fitted on candidates; the identity
+    when they carry one label only. Weakly regularised (C = 100): three coefficients, hundreds of rows."""
+    q = np.clip(p, 1e-9, 1 - 1e-9)
+    got = fit(np.column_stack([np.log(q / (1 - q)), textured]), y, 100.0)
+    return [0.0, 1.0, 0.0] if got is None else got
+
+
+def emitted(d: dict, stages, threshold: float) -> np.ndarray:
+    """Indices of the pairs emitted under ``stages`` at ``threshold``, and their probabilities."""
+    from egograph.frontend.verify import calibrate
+
+    full, fb, calib = stages
+    q = calibrate(pair_probability(d, full, fb), d["textured"], calib)
+    cand = candidates(d, q)
+    keep = cand[q[cand] >= threshold]
+    return keep, q[keep]
 
 
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--seeds", type=int, nargs="+", default=[27, 28])
-    ap.add_argument("--frames", type=int, default=500)
-    ap.add_argument("--cache", type=Path, default=REPO / ".cache" / "bench_fe")
+    ap.add_argument("--frames", type=int, default=300)
+    ap.add_argument("--synth-config", default="device-svoe",
+                    help="packaged synthetic-recording config of the tuning recordings (device-svoe: the "
+                         "device-like world; svoe: the legacy render)")
+    ap.add_argument("--cache", type=Path, default=REPO / ".cache" / "fe_device")
     ap.add_argument("--sets", nargs="+", default=["svoe", "mvpe"], choices=["svoe", "mvpe"])
-    ap.add_argument("--stride", type=int, default=5, help="every this many PV frames (the machine is shared)")
-    ap.add_argument("--c", type=float, default=1.0, help="inverse L2 regularisation strength")
+    ap.add_argument("--stride", type=int, default=1, help="every this many PV frames (the machine is shared)")
+    ap.add_argument("--c", type=float, default=1.0, help="inverse L2 regularisation strength of the pair model")
+    ap.add_argument("--calibration-only", action="store_true",
+                    help="keep the configured pair model (verify_coef_*, verify_fallback_*), fit the "
+                         "calibration map only")
+    ap.add_argument("--from-collected", action="store_true",
+                    help="refit on the pairs the last run saved in the cache (no detection)")
     ap.add_argument("--set", dest="overrides", action="append", default=[], metavar="KEY=VALUE")
     args = ap.parse_args()
     os.environ.setdefault("EGOGRAPH_CACHE", str(args.cache / "models"))
 
     from egograph.core.config import load_config
     from egograph.core.resources import default_config, synth_config
-    from egograph.frontend.verify import FALLBACK_FEATURES, FEATURES, expected_calibration_error, fallback_rows, probability
+    from egograph.frontend.verify import FALLBACK_FEATURES, FEATURES, expected_calibration_error
     from egograph.steps.detect import detect
     from egograph.steps.recording import open_recording
     from egograph.steps.settings import EgographConfig
     from egograph.synth.benchset import rgb_benchmark_set
 
-    roots = rgb_benchmark_set(args.seeds, args.frames, config=synth_config("svoe"), cache=args.cache)
     cfg = load_config(EgographConfig, default_config(), ["frontend.verify=all", *args.overrides])
+    fc = cfg.frontend
     for det_set in args.sets:
-        xs, ys, tex = [], [], []
-        for root in roots:
-            rec = open_recording(root, cfg)
-            got: list = []
-            out = Path(tempfile.mkdtemp(prefix="fitverify")) / "det"
-            report = detect(rec, det_set, cfg, out, overwrite=True, progress=False, collect=got,
-                            frames=range(0, len(rec), args.stride))
-            print(f"{root.name} {det_set}: {len(got)} shortlisted pairs\n{report.summary()}", flush=True)
-            if got:
-                xs.append(np.stack([g[4] for g in got]))
-                tex.append(np.array([g[3] for g in got]))
-                ys.append(label_pairs(rec, got))
-        x, y, t = np.concatenate(xs), np.concatenate(ys), np.concatenate(tex)
-        np.savez(args.cache / f"fit_verify_{det_set}.npz", x=x, y=y, textured=t)   # to refit without detecting
-        full = fit(x[t], y[t], args.c)
-        fb = fit(fallback_rows(x), y, args.c)   # the fallback model sees every crop: the more data, the steadier
-        p = np.where(t, probability(x, full), probability(fallback_rows(x), fb))
-        print(f"\n{det_set}: {len(y)} pairs ({t.sum()} with keypoints), {y.mean():.3f} true; training ECE "
-              f"{expected_calibration_error(p, y):.3f} (textured {expected_calibration_error(p[t], y[t]):.3f}, "
-              f"fallback {expected_calibration_error(p[~t], y[~t]):.3f})")
+        saved = args.cache / f"fit_verify_{det_set}.npz"
+        if args.from_collected:
+            if not saved.is_file():
+                raise SystemExit(f"--from-collected: {saved} not found (run without it first)")
+            with np.load(saved) as z:
+                d = {k: z[k] for k in z.files if k != "visible"}
+                n_visible = z["visible"]
+        else:
+            roots = rgb_benchmark_set(args.seeds, args.frames, config=synth_config(args.synth_config), cache=args.cache)
+            parts, n_visible = [], []
+            for r, root in enumerate(roots):
+                rec = open_recording(root, cfg)
+                got: list = []
+                frames = range(0, len(rec), args.stride)
+                out = Path(tempfile.mkdtemp(prefix="fitverify")) / "det"
+                report = detect(rec, det_set, cfg, out, overwrite=True, progress=False, collect=got, frames=frames)
+                print(f"{root.name} {det_set}: {len(got)} shortlisted pairs\n{report.summary()}", flush=True)
+                parts.append(collected_arrays(rec, got, r))
+                n_visible.append(visible_frames(rec, frames))
+            d = {k: np.concatenate([p[k] for p in parts]) for k in parts[0]}
+            n_visible = np.array(n_visible)
+            np.savez(saved, visible=n_visible, **d)
+        # cross-validation over the recordings
+        keep_pair = ((fc.verify_coef_svoe, fc.verify_fallback_svoe) if det_set == "svoe" else
+                     (fc.verify_coef_mvpe, fc.verify_fallback_mvpe)) if args.calibration_only else None
+        recs = np.unique(d["rec"])
+        ps, ys, n_true, n_emit, found, conf = [], [], 0, 0, 0, 0
+        for r in recs:
+            train = {k: v[d["rec"] != r] for k, v in d.items()}
+            test = {k: v[d["rec"] == r] for k, v in d.items()}
+            full, fb, calib, _ = fit_stages(train, fc.verify_top_k, args.c, keep_pair)
+            test = {k: v[test["rank"] < fc.verify_top_k] for k, v in test.items()}
+            keep, q = emitted(test, (full, fb, calib), fc.verify_threshold)
+            ps.append(q)
+            ys.append(test["own"][keep])
+            n_true += int(test["own"][keep].sum())
+            n_emit += len(keep)
+            found += len({(int(f), int(k)) for f, k, o in zip(test["frame"][keep], test["instance"][keep],
+                                                              test["own"][keep]) if o})
+            conf += int((test["other"][keep] & ~test["own"][keep]).sum())
+        p, y = np.concatenate(ps), np.concatenate(ys)
+        full, fb, calib, s = fit_stages(d, fc.verify_top_k, args.c, keep_pair)
+        print(f"\n{det_set}: {len(s['own'])} shortlisted pairs (top {fc.verify_top_k}; {int(s['textured'].sum())} with "
+              f"keypoints), {s['own'].mean():.3f} true; {int(n_visible.sum())} visible instance-frames")
+        print(f"  cross-validated over {len(recs)} recordings at verify_threshold {fc.verify_threshold}: {n_emit} "
+              f"detections, {n_true} on the instance, {found} instance-frames found, {conf} on another instance; "
+              f"ECE {expected_calibration_error(p, y):.3f} (mean p {p.mean() if len(p) else float('nan'):.3f}, "
+              f"share true {y.mean() if len(y) else float('nan'):.3f})")
         print(f"  features {FEATURES}; fallback {FALLBACK_FEATURES}")
-        print(f"  verify_coef_{det_set}: {full}\n  verify_fallback_{det_set}: {fb}", flush=True)
+        print(f"  verify_coef_{det_set}: {full}\n  verify_fallback_{det_set}: {fb}\n  verify_calib_{det_set}: {calib}",
+              flush=True)
 
 
 if __name__ == "__main__":

@@ -169,16 +169,31 @@ class FrontendConfig(Checked):
                                "probable)", choices=EXCLUSIVE_SETS)
     verify_top_k: int = knob(3, "verification: proposals per instance and frame shortlisted by the embedding "
                                 "(the plain cosine, or the whitened one under whitening)", min=1)
-    verify_threshold: float = knob(0.3, "verification: least probability of an emitted detection. On the tuning "
-                                        "recordings (27-28, every 5th frame) the shortlisted pairs at 0.3 or more were "
-                                        "72 % (SVOE, 32 pairs) and 100 % (MVPE, 12) on the instance, at 0.2 45 % and 49 %; "
-                                        "MVPE reached no probability above 0.33. The trackers' score_threshold (0.6) "
-                                        "drops detections below it: track verified detections with --set "
-                                        "graph.score_threshold=0.3 (and track.score_threshold for the baselines)",
+    verify_threshold: float = knob(0.15, "verification: least calibrated probability (verify_calib_*) of an emitted "
+                                         "detection. Device-like tuning recordings 27-28 (300 frames each, SVOE, "
+                                         "cross-validated over the two): at 0.3 59 detections, 47 % on the instance, 28 "
+                                         "instance-frames found; 0.2 105, 29 %, 30; 0.15 130, 23 %, 30; 0.1 190, 16 %, 31 "
+                                         "(the front-end without verification: 320, 9 %, 30). The trackers' "
+                                         "score_threshold (0.6) drops detections below it: track verified detections "
+                                         "with --set graph.score_threshold=0.15 (and track.score_threshold for the "
+                                         "baselines)",
                                    min=0.0, max=1.0)
     verify_side_px: int = knob(160, "verification: crops and enrollment views are resampled so that their longer "
                                     "side is this many pixels before SIFT (small crops enlarged)", min=32)
-    verify_max_keypoints: int = knob(300, "verification: most SIFT keypoints per crop or view", min=8)
+    verify_max_keypoints: int = knob(150, "verification: most SIFT keypoints per crop or view (the strongest). "
+                                          "Device-like tuning recordings 27-28, SVOE: 150 and 300 gave the same "
+                                          "detections (34 on the instance of 111 and 113, 34 instance-frames found), "
+                                          "verification 1.4x against 2.0x the encoder's time per frame", min=8)
+    verify_stretch: bool = knob(True, "verification: each crop's and view's grey levels are stretched over 0-255 (1-99 "
+                                      "percentile) before SIFT, whose contrast threshold is absolute: on the dark, "
+                                      "low-contrast crops of the device-like world (tuning seed 27, true boxes of every "
+                                      "10th frame) the median crop had 0 keypoints, 3 stretched")
+    verify_contrast: float = knob(0.01, "verification: SIFT's contrast threshold (OpenCV's contrastThreshold; lower: more "
+                                        "keypoints on faint print, and on noise). Stretched crops as for verify_stretch: "
+                                        "median keypoints 3 at 0.04, 14 at 0.02, 53 at 0.01; true SVOE pairs with 8 or "
+                                        "more inliers at 0.01: 31 %, false ones 1 % (tuning seed 27). The real "
+                                        "photographs of tests/test_frontend_verify.py: 35-149 inliers on the object at "
+                                        "0.01, 19-90 at 0.04 unstretched", gt=0.0)
     verify_max_views: int = knob(12, "verification: most enrollment views per instance verified against "
                                      "(evenly spread over its photos; SVOE has 4)", min=1)
     verify_ratio: float = knob(0.8, "verification: Lowe's ratio test, nearest over second-nearest descriptor "
@@ -204,6 +219,17 @@ class FrontendConfig(Checked):
                                       "whitened, colour] (fitted as verify_coef_svoe, on every pair)", length=5)
     verify_fallback_mvpe: list = knob([-6.9517, 6.5404, 4.8738, 0.0, 1.7001],
                                       "verification, MVPE crops without keypoints: as verify_fallback_svoe", length=5)
+
+    verify_calib_svoe: list = knob([-3.528, 1.1885, 2.6368],
+                                   "verification, SVOE: the map from the pair model's probability to the emitted one, "
+                                   "[a, b, c] in sigmoid(a + b logit(p) + c textured) "
+                                   "(egograph.frontend.verify.calibrate), fitted on each instance's most probable "
+                                   "proposal per frame; [0, 1, 0] = the pair model's probability. Fitted by "
+                                   "tools/fit_verify.py --calibration-only on the device-like tuning recordings 27-28 "
+                                   "(300 frames, every frame, verify_max_keypoints 300; the pair model kept: refitted on these two recordings "
+                                   "it found fewer instance-frames cross-validated, 28 against 30 at threshold 0.2, "
+                                   "with 2 confusions against 0)", length=3)
+    verify_calib_mvpe: list = knob([0.0, 1.0, 0.0], "verification, MVPE: as verify_calib_svoe", length=3)
 
     def proposals_for(self, enroll: str) -> str:
         """The proposal source of an enrollment (``svoe`` | ``mvpe``): ``mvpe_proposals`` for MVPE

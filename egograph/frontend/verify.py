@@ -51,9 +51,11 @@ class LocalFeatures:
 
 def colour_histogram(rgb: np.ndarray, bins: tuple[int, int] = (12, 4)) -> np.ndarray:
     """Hue x saturation histogram (sums to 1) of the pixels with some saturation and brightness
-    (grey pixels carry no hue), plus one bin for the grey ones."""
+    (grey pixels carry no hue), plus one bin for the grey ones; ``rgb`` uint8 RGB (grey and RGBA
+    converted, anything else refused: a BGR image would swap red and blue hues)."""
     import cv2
 
+    rgb = as_rgb(rgb, what="colour histogram image")
     hsv = cv2.cvtColor(rgb, cv2.COLOR_RGB2HSV).reshape(-1, 3).astype(np.int32)
     grey = (hsv[:, 1] < 40) | (hsv[:, 2] < 40)
     h = np.minimum(hsv[~grey, 0] * bins[0] // 180, bins[0] - 1)
@@ -71,20 +73,24 @@ class Verifier:
         import cv2
 
         self.cfg = cfg
-        self.sift = cv2.SIFT_create(nfeatures=cfg.verify_max_keypoints)
+        self.sift = cv2.SIFT_create(nfeatures=cfg.verify_max_keypoints, contrastThreshold=cfg.verify_contrast)
         self.matcher = cv2.BFMatcher(cv2.NORM_L2)
 
-    def features(self, rgb: np.ndarray) -> LocalFeatures:
-        """RootSIFT of ``rgb`` (uint8 RGB) resampled so that its longer side is ``verify_side_px``
+    def features(self, rgb: np.ndarray, order: str = "rgb") -> LocalFeatures:
+        """RootSIFT of ``rgb`` (uint8 RGB, or BGR with ``order`` 'bgr'; grey and RGBA converted, anything
+        else refused by :func:`~egograph.frontend.encoder.as_rgb`: the colour histogram must see
+        the colours the enrollment's did) resampled so that its longer side is ``verify_side_px``
         (small crops are enlarged: SIFT's finest octave needs a few pixels per feature)."""
         import cv2
 
-        rgb = as_rgb(rgb)
+        rgb = as_rgb(rgb, order, "verification image")
         rows, cols = rgb.shape[:2]
         f = self.cfg.verify_side_px / max(rows, cols)
         img = cv2.resize(rgb, (max(1, round(cols * f)), max(1, round(rows * f))),
                          interpolation=cv2.INTER_AREA if f < 1 else cv2.INTER_LINEAR)
         grey = cv2.cvtColor(img, cv2.COLOR_RGB2GRAY)
+        if self.cfg.verify_stretch:
+            grey = stretch(grey)
         kps, desc = self.sift.detectAndCompute(grey, None)
         if desc is None or not kps:
             xy, desc = np.zeros((0, 2), np.float32), np.zeros((0, 128), np.float32)
@@ -140,6 +146,16 @@ class Verifier:
         return best_n, best_s, col
 
 
+def stretch(grey: np.ndarray, low: float = 1.0, high: float = 99.0) -> np.ndarray:
+    """``grey`` (uint8) with its ``low``-``high`` percentile range stretched to 0-255. SIFT's
+    contrast threshold is absolute: in a dark, low-contrast PV crop (the device's exposure) it finds
+    almost no keypoint, in the same crop stretched as many as in a well-lit photograph."""
+    lo, hi = np.percentile(grey, (low, high))
+    if hi - lo < 1.0:
+        return grey
+    return np.clip((grey.astype(np.float32) - lo) * (255.0 / (hi - lo)), 0, 255).astype(np.uint8)
+
+
 def textured(f: LocalFeatures, crop_shape: tuple[int, int], cfg: FrontendConfig) -> bool:
     """Whether a crop has something to verify: enough keypoints and a short side (original pixels)
     of at least ``verify_min_side_px``."""
@@ -151,6 +167,27 @@ def probability(x: np.ndarray, coef) -> np.ndarray:
     c = np.asarray(coef, np.float64)
     z = c[0] + np.asarray(x, np.float64) @ c[1:]
     return 1.0 / (1.0 + np.exp(-np.clip(z, -40, 40)))
+
+
+def calibrate(p: np.ndarray, textured_: np.ndarray, coef) -> np.ndarray:
+    """The emitted probability: the pair model's ``p`` mapped by the calibration ``coef`` = [a, b, c]
+    as ``1 / (1 + exp(-(a + b logit(p) + c textured)))``. The pair model is fitted on every shortlisted
+    pair; the detections are each instance's most probable proposal, a selection on which a model
+    fitted on few true pairs runs over- or under-confident, so the map is fitted on those candidates
+    (``tools/fit_verify.py``); [0, 1, 0] is the identity. ``b`` > 0 keeps the order among crops alike
+    in ``textured_``."""
+    q = np.clip(np.asarray(p, np.float64), 1e-9, 1 - 1e-9)
+    c = np.asarray(coef, np.float64)
+    z = c[0] + c[1] * np.log(q / (1 - q)) + c[2] * np.asarray(textured_, np.float64)
+    return 1.0 / (1.0 + np.exp(-np.clip(z, -40, 40)))
+
+
+def owned(prob: np.ndarray, listed: np.ndarray) -> np.ndarray:
+    """(K, P) instance x proposal probabilities with -inf where the pair was not shortlisted or the
+    proposal is more probably another instance (one proposal shows one object; ties to the first)."""
+    owner = np.argmax(np.where(listed, prob, -np.inf), axis=0)
+    mine = owner[None, :] == np.arange(prob.shape[0])[:, None]
+    return np.where(listed & mine, prob, -np.inf)
 
 
 def feature_rows(cos, cos_margin, white, inliers, spread, inlier_margin, colour) -> np.ndarray:

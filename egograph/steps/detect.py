@@ -277,17 +277,19 @@ class FrameDetector:
         for inst, ims in images.items():
             pick_ = np.unique(np.linspace(0, len(ims) - 1, min(len(ims), self.cfg.verify_max_views)).round().astype(int))
             self.verify_views[inst] = [self.verifier.features(ims[k]) for k in pick_]
-        self.coef = (self.cfg.verify_coef_svoe, self.cfg.verify_fallback_svoe) if enroll == "svoe" else \
-            (self.cfg.verify_coef_mvpe, self.cfg.verify_fallback_mvpe)
+        c = self.cfg   # (pair model, its fallback, calibration map) of the enrollment
+        self.coef = (c.verify_coef_svoe, c.verify_fallback_svoe, c.verify_calib_svoe) if enroll == "svoe" else \
+            (c.verify_coef_mvpe, c.verify_fallback_mvpe, c.verify_calib_mvpe)
         self.report.seconds["verify"] = self.report.seconds.get("verify", 0.0) + time.perf_counter() - t0
 
     def _verified_rows(self, i, rgb, kept, boxes, plain, white, guides) -> list:
         """Verification (see :mod:`egograph.frontend.verify`): per instance its ``verify_top_k``
-        proposals by embedding; each verified against the instance's views; the calibrated
-        probability; a proposal goes to the instance it is most probably (exclusive); per instance
-        the most probable at ``verify_threshold`` or more (or, with a guide, the nearest such)."""
+        proposals by embedding; each verified against the instance's views; the pair model's
+        probability; a proposal goes to the instance it is most probably (exclusive); the calibrated
+        probability (:func:`~egograph.frontend.verify.calibrate`); per instance the most probable at
+        ``verify_threshold`` or more (or, with a guide, the nearest such)."""
         from egograph.frontend.matching import crop, pick
-        from egograph.frontend.verify import fallback_rows, feature_rows, probability, textured
+        from egograph.frontend.verify import calibrate, fallback_rows, feature_rows, owned, probability, textured
 
         cfg, t0 = self.cfg, time.perf_counter()
         ids = sorted(plain)
@@ -309,6 +311,7 @@ class FrameDetector:
         listed = np.zeros((len(ids), n_p), bool)
         listed[np.repeat(np.arange(len(ids)), top.shape[1]), top.ravel()] = True
         prob = np.zeros((len(ids), n_p))
+        tex_p = np.zeros(n_p, bool)                 # per proposal: scored with its local features
         rows_out = []
         for a, inst in enumerate(ids):
             ks = top[a]
@@ -321,19 +324,19 @@ class FrameDetector:
             tex = np.array([textured(feats[int(k)], shapes[int(k)], cfg) for k in ks])
             p = np.where(tex, probability(x, self.coef[0]), probability(fallback_rows(x), self.coef[1]))
             prob[a, ks] = p
+            tex_p[ks] = tex
             if self.collect is not None:
                 for j, k in enumerate(ks):
-                    self.collect.append((i, inst, tuple(boxes[k]), bool(tex[j]), x[j]))
+                    self.collect.append((i, inst, tuple(boxes[k]), bool(tex[j]), x[j], feats[int(k)].n,
+                                         min(shapes[int(k)])))
             rows_out.append((a, inst, ks, tex))
-        owner = np.argmax(prob, axis=0)
+        mine = owned(prob, listed)
+        cal = np.where(np.isfinite(mine), calibrate(prob, tex_p[None, :], self.coef[2]), -np.inf)
         rows = []
         for a, inst, ks, tex in rows_out:
-            s = np.where(owner == a, prob[a], -np.inf)
-            s = np.where(listed[a], s, -np.inf)
-            k = pick(s, boxes, cfg.verify_threshold, (guides or {}).get(inst), cfg.guidance_radius_px)
+            k = pick(cal[a], boxes, cfg.verify_threshold, (guides or {}).get(inst), cfg.guidance_radius_px)
             if k is not None:
-                verified = bool(tex[list(ks).index(k)])
-                rows.append((inst, kept[k].box, 1.0 if verified else 0.0, float(prob[a, k])))
+                rows.append((inst, kept[k].box, 1.0 if tex_p[k] else 0.0, float(cal[a, k])))
         self.report.seconds["verify"] = self.report.seconds.get("verify", 0.0) + time.perf_counter() - t0
         return rows
 
@@ -441,12 +444,14 @@ class FrameDetector:
 
 def proposal_embeddings_key(rec: Recording, cfg, encoder, source_name: str) -> str:
     """What a frame's proposals and their embeddings depend on: the recording (poses included), the
-    front-end knobs that shape proposals and crops, the encoder and the proposal source."""
+    front-end knobs that shape proposals and crops (not matching's nor verification's), the encoder
+    and the proposal source."""
     f = to_dict(cfg.frontend)
     matching = ("similarity_threshold", "whiten", "whiten_threshold", "whiten_shrink", "whiten_frames", "exclusive",
                 "mvpe_pooling", "mvpe_max_photos", "mvpe_autocrop", "svoe_augment", "guidance_radius_px")
     return outputs.digest("proposal-embeddings", outputs.recording_digest(rec), encoder_id(cfg, encoder), source_name,
-                          {k: v for k, v in f.items() if k not in matching}, to_dict(cfg.io))
+                          {k: v for k, v in f.items() if k not in matching and not k.startswith("verify")},
+                          to_dict(cfg.io))
 
 
 def load_proposal_embeddings(path: str | Path, key: str) -> dict[int, tuple[list, np.ndarray]] | None:
@@ -617,7 +622,8 @@ def detect(rec: Recording, enroll: str, cfg, out: str | Path, *, encoder: str | 
     (rounds of adaptation detect again on the same proposals: only the scoring changes). Returns the
     report, or None when ``out`` already holds this exact run. Nothing enrolled, no PV image, a bad
     encoder or a teacher with nothing to teach raise before anything is written. ``collect``: a list
-    that receives, under verification, every shortlisted (frame, instance, box, textured, features)
+    that receives, under verification, every shortlisted (frame, instance, box, textured, features,
+    the crop's keypoints, its short side in PV pixels)
     (``tools/fit_verify.py`` fits the coefficients on it); ``frames``: detect in these PV frame
     indices only (benchmarks and fits on a sample; the other frames get no file)."""
     from tqdm import tqdm
