@@ -11,12 +11,15 @@ frames tell. Per sampled frame:
 * **AHAT depth discontinuities**: neighbouring pixel pairs whose ranges jump by more than
   ``jump_m`` (modulo the alias distance: the sensor wraps, a wrap is not an edge). An occluding
   contour is an image edge on one side of such a pair.
-* **registration**: each pair pixel through the candidate's ray table, AHAT extrinsics, the frame's
-  AHAT pose at its key plus the candidate's time offset (interpolated between the neighbouring
-  frames' poses), the PV pose and the candidate's PV intrinsics (the ``posed`` chain the robust lift
-  uses). A wrapped range is ambiguous by whole alias distances, and which side of the pair is the
-  near one is unknown after wrapping, so both pixels at every alias hypothesis up to
-  ``max_range_m`` are projected and the pair costs the distance of its nearest hypothesis.
+* **registration**: each pair's occluding edge through the candidate's ray table, AHAT extrinsics,
+  the frame's AHAT pose at its key plus the candidate's time offset (interpolated between the
+  neighbouring frames' poses), the PV pose and the candidate's PV intrinsics (the ``posed`` chain the
+  robust lift uses). The edge lies between the pair's pixels, so it is placed on their mid ray; at
+  the near pixel's range where the mesh resolves both pixels' alias (the occluding side), else at
+  every alias hypothesis of either pixel up to ``max_range_m``, and the pair costs the distance of
+  its nearest hypothesis. (Either pixel's own centre at its own range, tried before, biased the
+  refinement by 4-7 mm: the near centre lies half an AHAT pixel, 1.3 PV px, inside the occluder, and
+  the far one lands by baseline parallax wherever an edge happens to be.)
 
 The frame's cost is the mean over its pairs, in PV pixels; the score is the mean over frames
 (lower fits better) with its spread (standard deviation over frames). Two calibrations are compared
@@ -26,7 +29,10 @@ every registered point by the same image offset should not help; the offset that
 how far the calibration is off where a rotation error shows.
 
 What it does not see: the PV extrinsics (the posed chain does not use them) and, in a frame
-where the head is still, the time offset. API::
+where the head is still, the time offset. The mesh's silhouette is not scored: it reaches the PV
+frame through the PV pose and intrinsics alone, so it is the same for every AHAT extrinsic and time
+offset and can neither order such candidates nor steer their refinement (it is used to resolve the
+depth edges' aliasing). API::
 
     sample = prepare_fit(rec, cfg)                     # decode and edge the frames once
     s = fit_score(rec, sample, FitCandidate.of(ahat, pv), cfg)   # s.score, s.spread, s.offset_px
@@ -34,6 +40,7 @@ where the head is still, the time offset. API::
 
 from __future__ import annotations
 
+import warnings
 from dataclasses import dataclass, field
 
 import cv2
@@ -216,17 +223,21 @@ def depth_poses_at(rec, frames: np.ndarray, offset_ms: float) -> tuple[np.ndarra
 
 def _hypotheses(frame: FitFrame, cand: FitCandidate, depth_factor: float, cfg: CalibFitConfig,
                 to_world: np.ndarray | None, scene) -> np.ndarray:
-    """AHAT camera points (P, 2K, 3) of every pair: both pixels at each alias hypothesis up to
-    ``cfg.max_range_m`` (NaN beyond). With a mesh ray-casting ``scene`` (and the frame's AHAT camera
-    -> world ``to_world``) a pixel keeps one hypothesis: the largest ``r + k·alias`` not beyond the
-    mesh range along its ray plus ``cfg.mesh_slack_m`` (the robust lift's rule); none where the ray
-    misses the mesh."""
+    """AHAT camera points (P, H, 3) of every pair's occluding edge: on the pair's mid ray (the edge lies
+    between the two pixels, not at either centre) at each range hypothesis of either pixel up to
+    ``cfg.max_range_m`` (NaN beyond; H = 2K for K alias hypotheses). With a mesh ray-casting ``scene``
+    (and the frame's AHAT camera -> world ``to_world``) each pixel keeps one range: the largest
+    ``r + k·alias`` not beyond the mesh range along its own ray plus ``cfg.mesh_slack_m`` (the robust
+    lift's rule), and the pair keeps the nearer of its two (the occluding side): H = 1, NaN where both
+    rays miss the mesh."""
     max_range_m = cfg.max_range_m
     a = cand.ahat
     rows, cols = frame.pixels[..., 0], frame.pixels[..., 1]
     xy = np.asarray(a.uv2xy, np.float64)[rows, cols]                     # (P, 2, 2)
     xy1 = np.concatenate([xy, np.ones(xy.shape[:-1] + (1,))], -1)
     unit = xy1 / np.linalg.norm(xy1, axis=-1, keepdims=True)
+    mid = unit.sum(1)
+    mid /= np.linalg.norm(mid, axis=-1, keepdims=True)                   # (P, 3)
     r = frame.raw * (depth_factor / a.scale)                             # (P, 2) wrapped range
     k = np.arange(max(1, int(np.floor(max_range_m / a.alias_m)) + 1))
     rk = r[..., None] + a.alias_m * k                                    # (P, 2, K)
@@ -235,11 +246,14 @@ def _hypotheses(frame: FitFrame, cand: FitCandidate, depth_factor: float, cfg: C
         limit = _mesh_range(scene, unit.reshape(-1, 3), to_world).reshape(r.shape) + cfg.mesh_slack_m
         below = rk <= limit[..., None]
         last = np.where(below.any(-1), below.shape[-1] - 1 - np.argmax(below[..., ::-1], axis=-1), -1)
-        # one hypothesis per pixel: (P, 2, 1)
-        rk = np.take_along_axis(rk, np.maximum(last, 0)[..., None], -1)
-        rk[last < 0] = np.nan
-    pts = unit[:, :, None, :] * rk[..., None]                            # (P, 2, K or 1, 3)
-    return pts.reshape(len(pts), -1, 3)
+        resolved = np.take_along_axis(rk, np.maximum(last, 0)[..., None], -1)[..., 0]   # (P, 2)
+        resolved[last < 0] = np.nan
+        with warnings.catch_warnings():      # a pair whose rays both miss the mesh: NaN, no warning
+            warnings.simplefilter("ignore", RuntimeWarning)
+            rk = np.nanmin(resolved, axis=1)[:, None]                    # (P, 1): the occluding side
+    else:
+        rk = rk.reshape(len(rk), -1)                                     # (P, 2K)
+    return mid[:, None, :] * rk[..., None]
 
 
 def _mesh_range(scene, unit_cam: np.ndarray, to_world: np.ndarray) -> np.ndarray:
