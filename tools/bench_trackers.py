@@ -28,7 +28,7 @@ import benchdoc
 import numpy as np
 
 from egograph.core.config import load_config
-from egograph.core.resources import default_config, synth_config
+from egograph.core.resources import default_config
 from egograph.eval.metrics import IntervalTally, dominance_misses, gt_intervals, observable_intervals, ratio, target_checks
 from egograph.eval.report import EvalReport, comparison_json, comparison_table, plot_pr
 from egograph.io.atomic import atomic_write_text
@@ -38,7 +38,7 @@ from egograph.steps.recording import open_recording
 from egograph.steps.settings import EgographConfig
 from egograph.steps.track import track as _track_step
 from egograph.steps.track import write_results
-from egograph.synth.benchset import ORACLE, benchmark_set, cached_observations
+from egograph.synth.benchset import ORACLE, add_world_argument, benchmark_set, cached_observations, world_config
 from egograph.synth.calibrate import BANDS, PAPER, band_values, bootstrap_se, pooled_values
 from egograph.synth.oracle import oracle_tracker
 from egograph.synth.truth import never_visible_intervals, synth_lift_errors
@@ -48,7 +48,6 @@ from egograph.track.smooth import smooth_predictions
 
 REPO = Path(__file__).resolve().parents[1]
 DEFAULT_CACHE = REPO / ".cache" / "bench"
-SYNTH_CONFIG = synth_config("svoe")
 TRACKERS = ("memory", "kf", "graph", "graph-causal")
 SMOOTHED = ("memory", "kf")  # trackers whose per-frame output also gets the "+graph" smoothing row
 MODES = ("reference", "robust")
@@ -193,6 +192,7 @@ def main() -> None:
                     help="generator override for the benchmark set (e.g. detections.svoe.detect_rate=0.5)")
     ap.add_argument("--set", dest="overrides", action="append", default=[], help="pipeline override")
     ap.add_argument("--cache", type=Path, default=DEFAULT_CACHE)
+    add_world_argument(ap)
     ap.add_argument("--out", type=Path, default=REPO / ".cache" / "bench_trackers")
     ap.add_argument("--relift", action="store_true", help="ignore cached observations")
     ap.add_argument("--poses", help="refined poses per recording instead of the reported ones: a folder pattern "
@@ -206,7 +206,7 @@ def main() -> None:
     args = ap.parse_args()
     benchdoc.start(__file__, args)
 
-    roots = benchmark_set(args.seeds, args.frames, config=SYNTH_CONFIG, overrides=args.synth_overrides,
+    roots = benchmark_set(args.seeds, args.frames, config=world_config(args.world), overrides=args.synth_overrides,
                           cache=args.cache)
     reports: dict[str, dict[str, EvalReport]] = {s: {} for s in ("svoe", "mvpe")}
     tallies: dict[tuple[str, str], IntervalTally] = {}

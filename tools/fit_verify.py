@@ -62,6 +62,9 @@ def main() -> None:
     ap.add_argument("--frames", type=int, default=500)
     ap.add_argument("--cache", type=Path, default=REPO / ".cache" / "bench_fe")
     ap.add_argument("--sets", nargs="+", default=["svoe", "mvpe"], choices=["svoe", "mvpe"])
+    ap.add_argument("--world", default="device", choices=("device", "legacy"),
+                    help="generator world of the RGB recordings (default device; legacy: the world the verification "
+                         "was fitted in, issue 39)")
     ap.add_argument("--stride", type=int, default=5, help="every this many PV frames (the machine is shared)")
     ap.add_argument("--c", type=float, default=1.0, help="inverse L2 regularisation strength")
     ap.add_argument("--set", dest="overrides", action="append", default=[], metavar="KEY=VALUE")
@@ -69,14 +72,14 @@ def main() -> None:
     os.environ.setdefault("EGOGRAPH_CACHE", str(args.cache / "models"))
 
     from egograph.core.config import load_config
-    from egograph.core.resources import default_config, synth_config
+    from egograph.core.resources import default_config
     from egograph.frontend.verify import FALLBACK_FEATURES, FEATURES, expected_calibration_error, fallback_rows, probability
     from egograph.steps.detect import detect
     from egograph.steps.recording import open_recording
     from egograph.steps.settings import EgographConfig
-    from egograph.synth.benchset import rgb_benchmark_set
+    from egograph.synth.benchset import rgb_benchmark_set, world_config
 
-    roots = rgb_benchmark_set(args.seeds, args.frames, config=synth_config("svoe"), cache=args.cache)
+    roots = rgb_benchmark_set(args.seeds, args.frames, config=world_config(args.world), cache=args.cache)
     cfg = load_config(EgographConfig, default_config(), ["frontend.verify=all", *args.overrides])
     for det_set in args.sets:
         xs, ys, tex = [], [], []

@@ -68,6 +68,14 @@ def world_config(world: str, primary: str = "svoe") -> Path:
     return synth_config(primary if world == "legacy" else f"device-{primary}")
 
 
+def add_world_argument(ap) -> None:
+    """``--world {device,legacy}`` (default device) on a bench tool's argparse parser: the world its
+    benchmark set is built in (:func:`world_config`)."""
+    ap.add_argument("--world", default="device", choices=BENCH_WORLDS,
+                    help="generator world of the benchmark set: device (the default: photographic surfaces, the PV "
+                         "camera, hands) or legacy (the world of the records made before issue 38)")
+
+
 def set_dir(cache: str | Path, frames: int, overrides: Sequence[str] = (), world: str = "legacy") -> Path:
     """The folder of one benchmark set: ``CACHE/f<frames>`` plus a tag of the generator overrides;
     under ``CACHE/device/`` in the device world (legacy sets keep the folders they always had)."""
