@@ -9,20 +9,25 @@ import numpy as np
 import pytest
 from conftest import TINY
 
-from egograph.core.config import to_dict
+from egograph.core.config import load_config, to_dict
 from egograph.io.poses import read_pose_json, write_pose_json
 from egograph.io.recording import Recording
 from egograph.poses.refine import apply_poses
 from egograph.steps.settings import EgographConfig
 from egograph.synth.benchset import (
     ANNOTATED_BOXES,
+    BENCH_WORLDS,
     ORACLE,
+    add_world_argument,
     benchmark_set,
     cached_observations,
     exact_poses_view,
     observations_key,
     observations_path,
+    world_config,
 )
+from egograph.synth.config import SynthConfig
+from egograph.synth.generate import DEVICE_REVISION
 
 FRAMES = 20
 
@@ -156,3 +161,33 @@ def test_exact_poses_view_lifts_with_the_true_poses(tiny_set):
     np.testing.assert_array_equal(exact.pv_poses, gt)
     assert not np.allclose(true_obs.world, obs.world, atol=1e-4)  # the reported poses carry error
     np.testing.assert_array_equal(true_obs.timestamps, obs.timestamps)  # the same boxes
+
+
+@pytest.mark.parametrize("world", BENCH_WORLDS)
+@pytest.mark.parametrize("primary", ["svoe", "mvpe"])
+def test_world_config_is_of_that_world(world, primary):
+    cfg = load_config(SynthConfig, world_config(world, primary))
+    assert cfg.world == world and cfg.detections.primary == primary
+
+
+def test_bench_tools_build_in_the_device_world_unless_told():
+    import argparse
+
+    ap = argparse.ArgumentParser()
+    add_world_argument(ap)
+    assert ap.parse_args([]).world == "device" and ap.parse_args(["--world", "legacy"]).world == "legacy"
+    with pytest.raises(ValueError, match="benchmark world"):
+        world_config("lab")
+
+
+def test_device_set_is_generated_in_the_device_world_beside_the_legacy_one(tiny_set):
+    """The device world's recording of a seed lives under CACHE/device/ and records the device world; the
+    legacy recording of the same seed and length stays where it was, untouched."""
+    cache, roots = tiny_set
+    before = (roots[0] / "recording.json").stat().st_mtime_ns
+    (root,) = benchmark_set([1], FRAMES, config=world_config("device"), cache=cache, progress=False)
+    assert root == cache / "device" / f"f{FRAMES}" / "seed1" and roots[0] == cache / f"f{FRAMES}" / "seed1"
+    meta = json.loads((root / "recording.json").read_text())
+    assert meta["config"]["world"] == "device" and meta["device_revision"] == DEVICE_REVISION
+    assert json.loads((roots[0] / "recording.json").read_text())["config"].get("world", "legacy") == "legacy"
+    assert (roots[0] / "recording.json").stat().st_mtime_ns == before

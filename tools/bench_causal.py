@@ -30,7 +30,7 @@ import benchdoc
 import numpy as np
 
 from egograph.core.config import load_config
-from egograph.core.resources import default_config, synth_config
+from egograph.core.resources import default_config
 from egograph.core.types import PositionInterval, TrackResult
 from egograph.eval.metrics import gt_intervals
 from egograph.eval.protocol import THRESHOLDS, Counts
@@ -39,7 +39,7 @@ from egograph.steps.evaluate import evaluate
 from egograph.steps.recording import open_recording
 from egograph.steps.settings import EgographConfig
 from egograph.steps.track import track as track_step
-from egograph.synth.benchset import benchmark_set, cached_observations
+from egograph.synth.benchset import add_world_argument, benchmark_set, cached_observations, world_config
 from egograph.track.config import GraphConfig
 from egograph.track.intervals import per_frame_predictions
 from egograph.track.online import OnlineTracker
@@ -66,8 +66,8 @@ def causal_ceiling(rec, obs, cfg) -> TrackResult:
 
 
 def accuracy(seeds, frames, cache, lags, overrides, plot: Path | None = None,
-             set_overrides: dict[str, list[str]] | None = None) -> None:
-    roots = benchmark_set(seeds, frames, config=synth_config("svoe"), cache=cache, progress=False)
+             set_overrides: dict[str, list[str]] | None = None, world: str = "device") -> None:
+    roots = benchmark_set(seeds, frames, config=world_config(world), cache=cache, progress=False)
     cfg = load_config(EgographConfig, default_config(), overrides)
     cfg.lift.mode = "robust"
     # per detection set: the same overrides plus that set's own (e.g. its front-end's noise scale)
@@ -270,6 +270,7 @@ def main() -> None:
     ap.add_argument("--seeds", type=int, nargs="+", default=[11, 12, 13])
     ap.add_argument("--frames", type=int, default=1000)
     ap.add_argument("--cache", type=Path, default=REPO / ".cache" / "bench")
+    add_world_argument(ap)
     ap.add_argument("--lags", type=float, nargs="+", default=[0, 1, 2, 5, 10, 30])
     ap.add_argument("--set", dest="overrides", action="append", default=[], help="pipeline override")
     for d in ("svoe", "mvpe"):
@@ -288,7 +289,7 @@ def main() -> None:
     benchdoc.start(__file__, args)
     if not args.latency_only:
         accuracy(args.seeds, args.frames, args.cache, args.lags, args.overrides, args.plot,
-                 {"svoe": args.overrides_svoe, "mvpe": args.overrides_mvpe})
+                 {"svoe": args.overrides_svoe, "mvpe": args.overrides_mvpe}, world=args.world)
     if not args.no_latency:
         latency(args.stream_frames, args.instances, seed=7)
     benchdoc.finish()

@@ -34,7 +34,7 @@ import benchdoc
 import numpy as np
 
 from egograph.core.config import load_config
-from egograph.core.resources import default_config, synth_config
+from egograph.core.resources import default_config
 from egograph.core.types import TrackResult
 from egograph.eval.curves import ScoredAnswers, pr_curve, reliability
 from egograph.eval.protocol import THRESHOLDS
@@ -42,7 +42,7 @@ from egograph.steps.evaluate import evaluate
 from egograph.steps.recording import open_recording
 from egograph.steps.settings import EgographConfig
 from egograph.steps.track import track as track_step
-from egograph.synth.benchset import benchmark_set, cached_observations
+from egograph.synth.benchset import add_world_argument, benchmark_set, cached_observations, world_config
 from egograph.track.answers import ANSWER_KINDS, STAND, calibrated, isotonic_knots
 from egograph.track.registry import graph_with_scene
 from egograph.track.smooth import smooth_predictions
@@ -264,6 +264,7 @@ def main() -> None:
     ap.add_argument("--lags", type=float, nargs="+", default=[0.0])
     ap.add_argument("--set", dest="overrides", action="append", default=[], help="pipeline override")
     ap.add_argument("--cache", type=Path, default=REPO / ".cache" / "bench")
+    add_world_argument(ap)
     ap.add_argument("--fit", action="store_true", help="fit the calibration and choose the operating point "
                                                        "(tuning seeds only)")
     ap.add_argument("--min-share", nargs="+", default=[], metavar="NAME=SHARE",
@@ -275,7 +276,7 @@ def main() -> None:
     benchdoc.start(__file__, args)
     if args.fit and any(s > 300 for s in args.seeds):
         ap.error("--fit on held-out seeds (301+): fit on tuning seeds only")
-    roots = benchmark_set(args.seeds, args.frames, config=synth_config("svoe"), cache=args.cache, progress=False)
+    roots = benchmark_set(args.seeds, args.frames, config=world_config(args.world), cache=args.cache, progress=False)
     parts = [run_recording(r, args.overrides, args.lags, args.fit) for r in roots]
     cfg = load_config(EgographConfig, default_config(), args.overrides)
     doc = {"seeds": args.seeds, "frames": args.frames, "lags": args.lags, "overrides": args.overrides}

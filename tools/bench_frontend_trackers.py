@@ -7,7 +7,9 @@ graph tracker (robust lifting) on the same detections, beside the simulated fron
     .venv/bin/python tools/bench_frontend_trackers.py --seeds 27 28 --frames 1000 --sets mvpe --no-sot --no-guide \
         --config frontend-mvpe --adapt-rounds 2      # the tracker teaches the front-end, per round
 
-Recordings come from egograph.synth.benchset.rgb_benchmark_set (PV RGB, cached); detection folders
+Recordings come from egograph.synth.benchset.rgb_benchmark_set (PV RGB, cached) in the ``--world``
+(``device``, the default: photographic surfaces, the PV camera, hands; ``legacy``: the world of the
+records before issue 38, under the cache's top level as they always were); detection folders
 are cached beside them (``detect`` skips work already done). Per detection source
 (``simulated``: the recording's own set; ``detect``: egograph detect's output) and set (SVOE, MVPE):
 the share of detections that are true (on the instance: IoU >= 0.3 with its true box or the
@@ -34,7 +36,7 @@ import benchdoc
 
 from egograph.core.config import load_config
 from egograph.core.errors import InputError
-from egograph.core.resources import config_argument, default_config, synth_config
+from egograph.core.resources import config_argument, default_config
 from egograph.eval.protocol import THRESHOLDS, Counts
 from egograph.geometry.observations import Observations
 from egograph.frontend.adapt import Head
@@ -46,7 +48,7 @@ from egograph.steps.recording import open_recording
 from egograph.steps.settings import EgographConfig
 from egograph.steps.sot import eval_2d, sot
 from egograph.steps.track import track as track_step
-from egograph.synth.benchset import rgb_benchmark_set
+from egograph.synth.benchset import BENCH_WORLDS, rgb_benchmark_set, set_dir, world_config
 from egograph.synth.truth import detections_against_truth, own_column
 
 REPO = Path(__file__).resolve().parents[1]
@@ -92,6 +94,9 @@ def main() -> None:
     ap.add_argument("--frames", type=int, default=600)
     ap.add_argument("--cache", type=Path, default=REPO / ".cache" / "bench_fe")
     ap.add_argument("--sets", nargs="+", default=["svoe", "mvpe"], choices=["svoe", "mvpe"])
+    ap.add_argument("--world", default="device", choices=BENCH_WORLDS,
+                    help="generator world of the RGB recordings (default device; legacy: the records made before "
+                         "issue 38)")
     ap.add_argument("--tag", default="", help="detection and observation folders under this sub-folder of the "
                                              "cache (front-end variants side by side)")
     ap.add_argument("--no-sot", action="store_true", help="leave out the SOT (CSRT) row")
@@ -113,7 +118,9 @@ def main() -> None:
     benchdoc.start(__file__, args)
     os.environ.setdefault("EGOGRAPH_CACHE", str(args.cache / "models"))
 
-    roots = rgb_benchmark_set(args.seeds, args.frames, config=synth_config("svoe"), cache=args.cache)
+    roots = rgb_benchmark_set(args.seeds, args.frames, config=world_config(args.world), cache=args.cache)
+    # derived folders (detections, observations, results) of another world's recordings kept apart
+    world_dir = set_dir("", 0, (), args.world).parent  # "device" or "" (legacy: the folders it always had)
     base = load_config(EgographConfig, args.config, args.overrides)
     radius = base.frontend.guidance_radius_px
     import re
@@ -131,7 +138,7 @@ def main() -> None:
     for root in roots:
         rec = open_recording(root, base)
         for det_set in args.sets:
-            out = args.cache / "detect" / args.tag / root.name / det_set
+            out = args.cache / "detect" / args.tag / world_dir / root.name / det_set
             t = time.perf_counter()
             if detect(rec, det_set, base, out, progress=True) is not None:  # None: cached, not timed
                 t_detect += time.perf_counter() - t
@@ -140,7 +147,7 @@ def main() -> None:
             for vname, vsets in variants:
                 # another front-end configuration, detected on the same recording in this run
                 vcfg = load_config(EgographConfig, args.config, [*args.overrides, *vsets])
-                out_v = args.cache / "detect" / args.tag / root.name / f"{det_set}_{vname}"
+                out_v = args.cache / "detect" / args.tag / world_dir / root.name / f"{det_set}_{vname}"
                 t = time.perf_counter()
                 rep_v = detect(rec, det_set, vcfg, out_v, progress=True)
                 if rep_v is not None:
@@ -152,7 +159,7 @@ def main() -> None:
             if args.no_simulated:
                 sources = sources[1:]
             if det_set == "svoe" and not args.no_sot:
-                sot_dir = args.cache / "sot" / root.name
+                sot_dir = args.cache / "sot" / world_dir / root.name
                 sot(rec, base, sot_dir, method="csrt", progress=False)
                 sources.append(("SOT (CSRT)", str(sot_dir), sot_dir))
             k = 0
@@ -183,13 +190,13 @@ def main() -> None:
                     if source.startswith("detect + adapt"):
                         tag = "adapt_" + source.rsplit(" ", 1)[1]
                     try:
-                        obs, _ = lift(rec, spec, cfg, args.cache / "obs" / args.tag / root.name / f"{tag}_{det_set}_{mode}.npz",
+                        obs, _ = lift(rec, spec, cfg, args.cache / "obs" / args.tag / world_dir / root.name / f"{tag}_{det_set}_{mode}.npz",
                                       progress=False)
                     except InputError as e:  # nothing lifted: no predictions (every true frame a miss)
                         print(f"{root.name} {source} {det_set} {mode}: {e}", flush=True)
                         obs = Observations.empty()
                     # results folders kept (read back when the same observations and configuration come again)
-                    kept = args.cache / "results" / args.tag / root.name / f"{tag}_{det_set}_{mode}_{tracker}"
+                    kept = args.cache / "results" / args.tag / world_dir / root.name / f"{tag}_{det_set}_{mode}_{tracker}"
                     result = track_step(rec, tracker, obs, cfg, kept if len(obs) else None)
                     key = (source, det_set, label)
                     one = evaluate(rec, result).total
@@ -198,10 +205,10 @@ def main() -> None:
                     r = 0 if source == "detect" else int(source.rsplit("r", 1)[1]) if source.startswith("detect + adapt") else -1
                     if tracker == "graph" and 0 <= r < args.adapt_rounds:
                         # the graph's results on this round's detections teach the next round's head
-                        out_a = args.cache / "detect" / args.tag / root.name / f"{det_set}_adapt_r{r + 1}"
+                        out_a = args.cache / "detect" / args.tag / world_dir / root.name / f"{det_set}_adapt_r{r + 1}"
                         t = time.perf_counter()
                         rep = detect(rec, det_set, base, out_a, adapt=teacher_from_result(rec, result, folder),
-                                     embeddings=args.cache / "detect" / args.tag / root.name / f"{det_set}_proposals.npz",
+                                     embeddings=args.cache / "detect" / args.tag / world_dir / root.name / f"{det_set}_proposals.npz",
                                      progress=False)
                         name = f"detect + adapt r{r + 1}"
                         dt = time.perf_counter() - t
@@ -222,14 +229,14 @@ def main() -> None:
                     if source == "detect" and tracker == "graph-causal" and radius > 0 and not args.no_guide:
                         # 3D guidance as in the paper: each frame's choice among the above-threshold
                         # proposals follows the causal tracker's estimate of the frame before
-                        out_g = args.cache / "detect" / args.tag / root.name / f"{det_set}_guided_{radius:g}px"
+                        out_g = args.cache / "detect" / args.tag / world_dir / root.name / f"{det_set}_guided_{radius:g}px"
                         detect(rec, det_set, base, out_g, guide_world=guides_from_predictions(rec, result.per_frame),
                                progress=False)
                         sources.append(("detect + 3D guidance", str(out_g), out_g))
     speed = f"detect {frames / t_detect:.1f} frames/s over {frames} frames" if frames else "detections cached"
     for vname, (sec, n) in vtime.items():
         speed += f"; [{vname}] {n / sec:.1f} frames/s over {n} frames"
-    print(f"\nRGB recordings: seeds {', '.join(map(str, args.seeds))} x {args.frames} frames; {speed}\n")
+    print(f"\nRGB recordings ({args.world} world): seeds {', '.join(map(str, args.seeds))} x {args.frames} frames; {speed}\n")
     rows = []
     for (source, det_set, label), c in pooled.items():
         tr, tot = shares[(source, det_set)]
@@ -238,7 +245,7 @@ def main() -> None:
     benchdoc.table("Trackers on each detection source",
                    ["source", "set", "true / all detections", "tracker", "P@0.25", "P@1.5", "R@0.25", "R@1.5", "L2 (m)"],
                    rows, ["", "", "{0} / {1} ({2:.0f} %)", "", ".1f", ".1f", ".1f", ".1f", ".2f"],
-                   note=f"RGB recordings: seeds {', '.join(map(str, args.seeds))} x {args.frames} frames; {speed}.")
+                   note=f"RGB recordings ({args.world} world): seeds {', '.join(map(str, args.seeds))} x {args.frames} frames; {speed}.")
     from egograph.frontend.verify import expected_calibration_error
 
     rows = []

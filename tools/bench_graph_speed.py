@@ -24,11 +24,11 @@ import benchdoc
 import numpy as np
 
 from egograph.core.config import load_config
-from egograph.core.resources import default_config, synth_config
+from egograph.core.resources import default_config
 from egograph.geometry.observations import Observations
 from egograph.steps.recording import open_recording
 from egograph.steps.settings import EgographConfig
-from egograph.synth.benchset import benchmark_set, cached_observations
+from egograph.synth.benchset import add_world_argument, benchmark_set, cached_observations, world_config
 from egograph.track.baselines import kalman_tracker
 from egograph.track.config import BaselineConfig, GraphConfig
 from egograph.track.graph import graph_tracker
@@ -42,14 +42,14 @@ SEEDS = (1, 2, 3, 4, 5)  # tuning recordings: the solve's speed, not its accurac
 
 
 def long_stream(n_frames: int, det_set: str, cache: Path, seeds: Sequence[int] = SEEDS,
-                rec_frames: int = 3000) -> tuple[Observations, np.ndarray]:
+                rec_frames: int = 3000, world: str = "device") -> tuple[Observations, np.ndarray]:
     """Benchmark observations of the ``rec_frames``-frame recordings ``seeds`` (generated into
-    ``cache`` when missing) laid end to end to ``n_frames`` frames (ticks on a 30 fps grid)."""
+    ``cache`` when missing, in the benchmark ``world``) laid end to end to ``n_frames`` frames (ticks on a 30 fps grid)."""
     parts, offset, k = [], 0, 0
     cfg = load_config(EgographConfig, default_config())
     cfg.lift.mode = "robust"
     streams = []
-    for root in benchmark_set(seeds, rec_frames, config=synth_config("svoe"), cache=cache):
+    for root in benchmark_set(seeds, rec_frames, config=world_config(world), cache=cache):
         # reported poses, the default config; lifted when not cached yet
         streams.append(cached_observations(open_recording(root, cfg), det_set, cfg)[0])
     while offset < n_frames:
@@ -68,6 +68,7 @@ def main() -> None:
     ap.add_argument("--frames", type=int, nargs="+", default=[1000, 10000, 50000])
     ap.add_argument("--set", dest="det_set", default="mvpe", help="detection set (mvpe has the most detections)")
     ap.add_argument("--cache", type=Path, default=DEFAULT_CACHE)
+    add_world_argument(ap)
     ap.add_argument("--seeds", type=int, nargs="+", default=list(SEEDS),
                     help="the benchmark recordings laid end to end (generated when not cached)")
     ap.add_argument("--rec-frames", type=int, default=3000, help="frames of each of those recordings")
@@ -77,7 +78,7 @@ def main() -> None:
     benchdoc.start(__file__, args)
     rows, table = [], []
     for n in args.frames:
-        obs, ts = long_stream(n, args.det_set, args.cache, args.seeds, args.rec_frames)
+        obs, ts = long_stream(n, args.det_set, args.cache, args.seeds, args.rec_frames, args.world)
         times, cpu = {}, {}
         for name, fn in (("switchable", lambda: graph_tracker(obs, ts, GraphConfig(negative_evidence=False))),
                          ("dcs", lambda: graph_tracker(obs, ts, GraphConfig(negative_evidence=False, switches="dcs"))),

@@ -29,7 +29,7 @@ import benchdoc
 import numpy as np
 
 from egograph.core.config import load_config
-from egograph.core.resources import default_config, synth_config
+from egograph.core.resources import default_config
 from egograph.eval.metrics import IntervalTally, gt_intervals
 from egograph.eval.report import EvalReport
 from egograph.io.poses import read_pose_json
@@ -40,13 +40,12 @@ from egograph.steps.joint import track_joint as track_graph_joint
 from egograph.steps.recording import open_recording
 from egograph.steps.settings import EgographConfig
 from egograph.steps.track import write_results
-from egograph.synth.benchset import benchmark_set, cached_observations
+from egograph.synth.benchset import add_world_argument, benchmark_set, cached_observations, world_config
 from egograph.track.joint import joint_poses, move_observations, with_joint_poses
 from egograph.track.registry import graph_with_scene as track_graph
 
 REPO = Path(__file__).resolve().parents[1]
 DEFAULT_CACHE = REPO / ".cache" / "bench"
-SYNTH_CONFIG = synth_config("svoe")
 ROWS = ("reported", "refined", "joint", "joint, no mesh")
 
 
@@ -64,6 +63,7 @@ def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--seeds", type=int, nargs="+", default=[1, 2, 3, 4, 5])
     ap.add_argument("--frames", type=int, default=3000)
+    add_world_argument(ap)
     ap.add_argument("--synth-set", dest="synth_overrides", action="append", default=[],
                     help="generator override for the benchmark set (a separate cached set)")
     ap.add_argument("--set", dest="overrides", action="append", default=[], help="pipeline override")
@@ -73,7 +73,7 @@ def main() -> None:
     benchdoc.start(__file__, args)
     cfg = load_config(EgographConfig, default_config(), args.overrides)
     cfg_nomesh = load_config(EgographConfig, default_config(), [*args.overrides, "refine.mesh=false"])
-    roots = benchmark_set(args.seeds, args.frames, config=SYNTH_CONFIG, overrides=args.synth_overrides,
+    roots = benchmark_set(args.seeds, args.frames, config=world_config(args.world), overrides=args.synth_overrides,
                           cache=DEFAULT_CACHE, progress=False)
     reports: dict[str, dict] = {"svoe": {}, "mvpe": {}}   # score(): EvalReport per row
     tallies: dict[tuple[str, str], IntervalTally] = {}     # ... and the true intervals recovered

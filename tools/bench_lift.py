@@ -24,23 +24,21 @@ from pathlib import Path
 import benchdoc
 import numpy as np
 
-from egograph.core.resources import synth_config
 from egograph.geometry.config import LiftConfig
 from egograph.geometry.lift import lift_recording
 from egograph.io.detections import read_detection_dir
 from egograph.io.poses import read_pose_json
 from egograph.io.recording import Recording
-from egograph.synth.benchset import benchmark_set
+from egograph.synth.benchset import add_world_argument, benchmark_set, world_config
 from egograph.synth.truth import synth_lift_errors
 
 REPO = Path(__file__).resolve().parents[1]
-SYNTH_CONFIG = synth_config("svoe")
 
 
-def recording(cache: Path, frames: int, seed: int) -> Path:
-    """The cached SVOE recording of ``frames`` frames for ``seed`` (egograph.synth.benchset: generated
-    when missing, detections re-simulated when the front-end changed)."""
-    return benchmark_set([seed], frames, config=SYNTH_CONFIG, cache=cache, progress=True)[0]
+def recording(cache: Path, frames: int, seed: int, world: str = "device") -> Path:
+    """The cached SVOE recording of ``frames`` frames for ``seed`` in the benchmark ``world``
+    (egograph.synth.benchset: generated when missing, detections re-simulated when the front-end changed)."""
+    return benchmark_set([seed], frames, config=world_config(world), cache=cache, progress=True)[0]
 
 
 def decode_seconds(rec: Recording, frames: list[int], threads: int = 1) -> float:
@@ -81,6 +79,7 @@ def main() -> None:
     ap.add_argument("--cache", type=Path, default=REPO / ".cache" / "bench_lift",
                     help="where generated recordings are kept and reused")
     ap.add_argument("--set", dest="det_set", default="svoe", help="detection set to lift (svoe or mvpe)")
+    add_world_argument(ap)
     benchdoc.add_arguments(ap, __file__)
     args = ap.parse_args()
     benchdoc.start(__file__, args)
@@ -92,7 +91,7 @@ def main() -> None:
     threads = LiftConfig().decode_threads
     floor_s, floor_frames, floor_mt_s = 0.0, 0, 0.0
     for seed in args.seeds:
-        root = recording(args.cache, args.frames, seed)
+        root = recording(args.cache, args.frames, seed, args.world)
         rec = Recording.open(root)
         dets = read_detection_dir(rec.detections_dir(args.det_set), rec.timestamps)
         frames = [rec.index_of(t) for t, d in dets.items() if d]

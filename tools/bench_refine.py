@@ -30,10 +30,9 @@ from pathlib import Path
 
 import benchdoc
 
-from egograph.core.resources import synth_config
+from egograph.synth.benchset import add_world_argument, world_config
 
 REPO = Path(__file__).resolve().parents[1]
-SYNTH_CONFIG = synth_config("svoe")
 DEFAULT_CACHE = REPO / ".cache" / "bench"
 RGB_CACHE = REPO / ".cache" / "bench_rgb"
 
@@ -161,12 +160,12 @@ def heldout_table(rows: list[dict]) -> None:
                   f"over recordings {np.mean(nees_) if nees_ else float('nan'):.2f} (expected 3)")
 
 
-def run_heldout(sets: list[int], extra: list[str], cache: Path) -> list[dict]:
+def run_heldout(sets: list[int], extra: list[str], cache: Path, world: str = "device") -> list[dict]:
     from egograph.synth.benchset import benchmark_set, exact_poses_view
 
     rows = []
     for frames in sets:
-        for root in benchmark_set(HELDOUT[frames], frames, config=SYNTH_CONFIG, cache=cache, progress=False):
+        for root in benchmark_set(HELDOUT[frames], frames, config=world_config(world), cache=cache, progress=False):
             rows.append(heldout_one(root, f"f{frames}/{root.name}", extra))
             rows.append(heldout_one(exact_poses_view(root), f"f{frames}/{root.name} exact", extra))
     return rows
@@ -204,6 +203,7 @@ def main() -> None:
     ap.add_argument("--synth-set", dest="synth_overrides", action="append", default=[], help="generator override")
     ap.add_argument("--set", dest="overrides", action="append", default=[], help="refine.* override (without 'refine.')")
     ap.add_argument("--rpe-delta", type=int, default=1)
+    add_world_argument(ap)
     ap.add_argument("--out-dir", type=Path, help="also write each row's refined poses to OUT_DIR/<seed>/<row>/")
     ap.add_argument("--heldout", action="store_true", help="issue 18: the default refinement on the HELDOUT seeds")
     ap.add_argument("--sets", type=int, nargs="+", default=[1000, 150, 300, 450, 600], choices=list(HELDOUT),
@@ -212,7 +212,7 @@ def main() -> None:
     a = ap.parse_args()
     bench = benchdoc.start(__file__, a)
     if a.heldout:
-        rows = run_heldout(a.sets, a.overrides, HELDOUT_CACHE)
+        rows = run_heldout(a.sets, a.overrides, HELDOUT_CACHE, a.world)
         print()
         heldout_table(rows)
         bench.data["rows"] = rows
@@ -222,9 +222,9 @@ def main() -> None:
     from egograph.synth.benchset import benchmark_set, exact_poses_view, rgb_benchmark_set
 
     if a.rgb:
-        roots = rgb_benchmark_set(a.seeds, a.frames, config=SYNTH_CONFIG, cache=RGB_CACHE, overrides=syn)
+        roots = rgb_benchmark_set(a.seeds, a.frames, config=world_config(a.world), cache=RGB_CACHE, overrides=syn)
     else:
-        roots = benchmark_set(a.seeds, a.frames, config=SYNTH_CONFIG, cache=DEFAULT_CACHE, overrides=syn)
+        roots = benchmark_set(a.seeds, a.frames, config=world_config(a.world), cache=DEFAULT_CACHE, overrides=syn)
     if a.no_error:
         roots = [exact_poses_view(r) for r in roots]
     results = []

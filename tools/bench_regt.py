@@ -23,7 +23,7 @@ import benchdoc
 import numpy as np
 
 from egograph.core.config import load_config
-from egograph.core.resources import default_config, synth_config
+from egograph.core.resources import default_config
 from egograph.io.annotations import load_annotations
 from egograph.io.poses import read_pose_json
 from egograph.poses.evaluate import evaluate_trajectory
@@ -31,19 +31,19 @@ from egograph.poses.refine import apply_poses, world_corrections
 from egograph.steps.recording import open_recording
 from egograph.steps.regt import regt_estimates
 from egograph.steps.settings import EgographConfig
-from egograph.synth.benchset import ANNOTATED_BOXES, benchmark_set, cached_observations
+from egograph.synth.benchset import ANNOTATED_BOXES, add_world_argument, benchmark_set, cached_observations, world_config
 from egograph.track.joint import move_observations
 from egograph.track.regt import reestimate_centres
 
 REPO = Path(__file__).resolve().parents[1]
 DEFAULT_CACHE = REPO / ".cache" / "bench"
-SYNTH_CONFIG = synth_config("svoe")
 
 
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--seeds", type=int, nargs="+", default=[1, 2, 3, 4, 5])
     ap.add_argument("--frames", type=int, default=3000)
+    add_world_argument(ap)
     ap.add_argument("--shift-m", type=float, default=0.2)
     ap.add_argument("--share", type=float, default=0.1)
     ap.add_argument("--seed", type=int, default=0, help="seed of the choice and direction of the shifts")
@@ -62,7 +62,8 @@ def main() -> None:
     no_view = 0
     ates = []
     t_lift = t_solve = 0.0
-    for seed, root in zip(args.seeds, benchmark_set(args.seeds, args.frames, config=SYNTH_CONFIG, cache=DEFAULT_CACHE)):
+    for seed, root in zip(args.seeds, benchmark_set(args.seeds, args.frames, config=world_config(args.world),
+                                                                  cache=DEFAULT_CACHE)):
         rec = open_recording(root, cfg)
         if args.poses:
             rec = apply_poses(rec, Path(args.poses.format(seed=seed)))

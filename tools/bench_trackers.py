@@ -2,7 +2,7 @@
 """The tracker benchmark: every tracker on the same observations of the benchmark set,
 SVOE and MVPE, both lifting modes, compared under the IT3DEgo protocol.
 
-    .venv/bin/python tools/bench_trackers.py --seeds 1 2 3 4 5 --frames 3000 [--out DIR]
+    .venv/bin/python tools/bench_trackers.py --seeds 1 2 3 4 5 --frames 3000 [--out DIR] [--world device legacy]
 
 Builds (or reuses) the cached benchmark set (egograph.synth.benchset), lifts each detection set
 with `reference` and `robust` lifting (observations cached beside the recordings), runs
@@ -13,6 +13,11 @@ lifting (the published pipeline), then the interval-level scores and the graph's
 counts of all recordings, as the reference evaluator does over sequences. Also prints the
 3D error of lifted true detections per lifting mode, lifting speed, and the calibration
 bands of the synthetic front-end (memory + reference lifting).
+
+``--world`` names the generator world of the set (default ``device``); with two (``--world device
+legacy``) the same seeds are built and tracked in both, every table is of the first, and a last
+table sets the calibration bands and the graph's targets of each world side by side (does a tracker's
+figure depend on how the pixels look, when the detections are simulated?).
 """
 
 from __future__ import annotations
@@ -28,7 +33,7 @@ import benchdoc
 import numpy as np
 
 from egograph.core.config import load_config
-from egograph.core.resources import default_config, synth_config
+from egograph.core.resources import default_config
 from egograph.eval.metrics import IntervalTally, dominance_misses, gt_intervals, observable_intervals, ratio, target_checks
 from egograph.eval.report import EvalReport, comparison_json, comparison_table, plot_pr
 from egograph.io.atomic import atomic_write_text
@@ -38,7 +43,7 @@ from egograph.steps.recording import open_recording
 from egograph.steps.settings import EgographConfig
 from egograph.steps.track import track as _track_step
 from egograph.steps.track import write_results
-from egograph.synth.benchset import ORACLE, benchmark_set, cached_observations
+from egograph.synth.benchset import BENCH_WORLDS, ORACLE, benchmark_set, cached_observations, world_config
 from egograph.synth.calibrate import BANDS, PAPER, band_values, bootstrap_se, pooled_values
 from egograph.synth.oracle import oracle_tracker
 from egograph.synth.truth import never_visible_intervals, synth_lift_errors
@@ -48,7 +53,6 @@ from egograph.track.smooth import smooth_predictions
 
 REPO = Path(__file__).resolve().parents[1]
 DEFAULT_CACHE = REPO / ".cache" / "bench"
-SYNTH_CONFIG = synth_config("svoe")
 TRACKERS = ("memory", "kf", "graph", "graph-causal")
 SMOOTHED = ("memory", "kf")  # trackers whose per-frame output also gets the "+graph" smoothing row
 MODES = ("reference", "robust")
@@ -193,6 +197,10 @@ def main() -> None:
                     help="generator override for the benchmark set (e.g. detections.svoe.detect_rate=0.5)")
     ap.add_argument("--set", dest="overrides", action="append", default=[], help="pipeline override")
     ap.add_argument("--cache", type=Path, default=DEFAULT_CACHE)
+    ap.add_argument("--world", nargs="+", default=["device"], choices=BENCH_WORLDS,
+                    help="generator world(s) of the benchmark set: device (the default: photographic surfaces, "
+                         "the PV camera, hands) or legacy (the records made before issue 38); with two, the same "
+                         "seeds in both, compared in the last table")
     ap.add_argument("--out", type=Path, default=REPO / ".cache" / "bench_trackers")
     ap.add_argument("--relift", action="store_true", help="ignore cached observations")
     ap.add_argument("--poses", help="refined poses per recording instead of the reported ones: a folder pattern "
@@ -206,22 +214,11 @@ def main() -> None:
     args = ap.parse_args()
     benchdoc.start(__file__, args)
 
-    roots = benchmark_set(args.seeds, args.frames, config=SYNTH_CONFIG, overrides=args.synth_overrides,
-                          cache=args.cache)
-    reports: dict[str, dict[str, EvalReport]] = {s: {} for s in ("svoe", "mvpe")}
-    tallies: dict[tuple[str, str], IntervalTally] = {}
-    lift_stats: dict[tuple[str, str], dict] = {}
-    timing: dict[str, float] = {}
-    jobs = [(seed, root, args) for seed, root in zip(args.seeds, roots)]
-    if args.jobs > 1:  # recordings are independent: each in a worker process, merged in seed order
-        with ProcessPoolExecutor(args.jobs, mp_context=multiprocessing.get_context("spawn")) as pool:
-            parts = list(pool.map(run_recording, *zip(*jobs)))
-    else:
-        parts = [run_recording(*job) for job in jobs]
-    for part in parts:
-        merge(part, reports, tallies, lift_stats, timing)
+    worlds = list(dict.fromkeys(args.world))
+    runs = {w: run_world(args, w, args.out if w == worlds[0] else args.out / w) for w in worlds}
+    roots, reports, tallies, lift_stats, timing = runs[worlds[0]]
     args.out.mkdir(parents=True, exist_ok=True)
-    benchdoc.text(f"Benchmark set: {len(roots)} synthetic recordings x {args.frames} frames (seeds "
+    benchdoc.text(f"Benchmark set ({worlds[0]} world): {len(roots)} synthetic recordings x {args.frames} frames (seeds "
                   f"{', '.join(map(str, args.seeds))}); counts pooled over the set.\n")
     for det_set, reps in reports.items():
         baseline = "kf (reference lift)" if "kf (reference lift)" in reps else None
@@ -272,7 +269,58 @@ def main() -> None:
     benchdoc.text(f"\ntrue intervals never a quarter visible (intervals_never_visible): {n_never}/{n_all} "
                   f"({100 * n_never / max(n_all, 1):.1f} %; per recording {', '.join(f'{n}/{t}' for n, t in never)})")
     benchdoc.text("\ntiming (s, whole set): " + ", ".join(f"{k} {v:.1f}" for k, v in timing.items()))
+    if len(worlds) > 1:
+        print_worlds({w: r[1] for w, r in runs.items()})
     benchdoc.finish()
+
+
+def run_world(args, world: str, out: Path) -> tuple:
+    """The benchmark set of ``args.seeds`` in ``world`` built (or read from the cache) and every
+    recording run (:func:`run_recording`, results under ``out``) -> (roots, reports, tallies,
+    lift_stats, timing), merged in seed order."""
+    roots = benchmark_set(args.seeds, args.frames, config=world_config(world), overrides=args.synth_overrides,
+                          cache=args.cache)
+    reports: dict[str, dict[str, EvalReport]] = {s: {} for s in ("svoe", "mvpe")}
+    tallies: dict[tuple[str, str], IntervalTally] = {}
+    lift_stats: dict[tuple[str, str], dict] = {}
+    timing: dict[str, float] = {}
+    jobs = [(seed, root, argparse.Namespace(**{**vars(args), "out": out})) for seed, root in zip(args.seeds, roots)]
+    if args.jobs > 1:  # recordings are independent: each in a worker process, merged in seed order
+        with ProcessPoolExecutor(args.jobs, mp_context=multiprocessing.get_context("spawn")) as pool:
+            parts = list(pool.map(run_recording, *zip(*jobs)))
+    else:
+        parts = [run_recording(*job) for job in jobs]
+    for part in parts:
+        merge(part, reports, tallies, lift_stats, timing)
+    return roots, reports, tallies, lift_stats, timing
+
+
+def print_worlds(reports: dict[str, dict]) -> None:
+    """Per world (same seeds, same run): the calibration bands of memory + reference lifting and the
+    graph's target ratios, side by side."""
+    worlds = list(reports)
+    rows = []
+    for det_set, bands in BANDS.items():
+        per_world = {}
+        for w in worlds:
+            reps = reports[w][det_set]
+            if "memory (reference lift)" in reps:
+                per = [s.result.total for s in reps["memory (reference lift)"].sequences.values()]
+                per_world[w] = (pooled_values(per), bootstrap_se(per))
+        for k, (lo, hi) in bands.items() if per_world else ():
+            cells = []
+            for w in worlds:
+                v, se = per_world.get(w, (None, None))
+                cells.append("-" if v is None else f"{v[k]:.2f} ± {se[k]:.2f} {'OK' if lo <= v[k] <= hi else 'OUT'}")
+            rows.append([det_set, f"memory + reference {k}", f"[{lo}, {hi}]", *cells])
+    checks = {w: {(c.det_set, c.row, c.against, c.metric): c for c in target_checks(reports[w])} for w in worlds}
+    for key in dict.fromkeys(k for w in worlds for k in checks[w]):
+        c0 = next(checks[w][key] for w in worlds if key in checks[w])
+        rows.append([c0.det_set, f"{c0.row} / {c0.against} {c0.metric}", f"{c0.op} {c0.bound}",
+                     *(f"{checks[w][key].ratio:.2f} {'holds' if checks[w][key].holds else 'NO'}"
+                       if key in checks[w] else "-" for w in worlds)])
+    benchdoc.table("Worlds side by side (same seeds, same run): calibration bands (pooled ± bootstrap standard error "
+                   "over recordings) and the graph's targets", ["set", "figure", "band / target", *worlds], rows)
 
 
 if __name__ == "__main__":

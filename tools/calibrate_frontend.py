@@ -28,10 +28,10 @@ from pathlib import Path
 import numpy as np
 
 from egograph.core.config import load_config, to_dict
-from egograph.core.resources import default_config, synth_config
+from egograph.core.resources import default_config
 from egograph.steps.recording import open_recording
 from egograph.steps.settings import EgographConfig
-from egograph.synth.benchset import benchmark_set
+from egograph.synth.benchset import add_world_argument, benchmark_set, world_config
 from egograph.synth.calibrate import (
     BANDS,
     PAPER,
@@ -208,6 +208,7 @@ def main() -> None:
     ap.add_argument("--seeds", type=int, nargs="+", required=True)
     ap.add_argument("--frames", type=int, default=3000)
     ap.add_argument("--cache", type=Path, default=REPO / ".cache" / "bench")
+    add_world_argument(ap)
     ap.add_argument("--set", dest="synth_overrides", action="append", default=[],
                     help="front-end knob to score at (e.g. detections.svoe.clutter_rate=0.2); tables are made for "
                          "the box_jitter, clutter_per_instance, other_score and min_written_score it gives")
@@ -217,8 +218,8 @@ def main() -> None:
     ap.add_argument("--json", type=Path, help="write the report here")
     args = ap.parse_args()
 
-    roots = benchmark_set(args.seeds, args.frames, config=synth_config("svoe"), cache=args.cache, progress=False)
-    scfg = load_config(SynthConfig, synth_config("svoe"), [f"frames={args.frames}", *args.synth_overrides])
+    roots = benchmark_set(args.seeds, args.frames, config=world_config(args.world), cache=args.cache, progress=False)
+    scfg = load_config(SynthConfig, world_config(args.world), [f"frames={args.frames}", *args.synth_overrides])
     cfg = load_config(EgographConfig, default_config(), ["lift.mode=reference"])
     why = implausible(scfg.detections)
     if why:

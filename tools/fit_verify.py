@@ -3,10 +3,10 @@
 on tuning RGB recordings, print it as configuration, and its calibration error by cross-validation
 over the recordings.
 
-    .venv/bin/python tools/fit_verify.py --seeds 27 28 --frames 300 --stride 1 --synth-config device-svoe \\
+    .venv/bin/python tools/fit_verify.py --seeds 27 28 --frames 300 --stride 1 --world device \\
         [--sets svoe mvpe] [--set KEY=VALUE] [--from-collected]
 
-Each recording (egograph.synth.benchset.rgb_benchmark_set of ``--synth-config``, cached under
+Each recording (egograph.synth.benchset.rgb_benchmark_set of the ``--world``'s SVOE config, cached under
 ``--cache``) runs ``egograph detect`` with verification on, collecting every shortlisted (proposal,
 instance) pair's features (egograph.frontend.verify.FEATURES). A pair is labelled true when the box is
 on the instance as the benchmarks count it: the instance at least a quarter visible and IoU >= 0.3
@@ -167,9 +167,9 @@ def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--seeds", type=int, nargs="+", default=[27, 28])
     ap.add_argument("--frames", type=int, default=300)
-    ap.add_argument("--synth-config", default="device-svoe",
-                    help="packaged synthetic-recording config of the tuning recordings (device-svoe: the "
-                         "device-like world; svoe: the legacy render)")
+    ap.add_argument("--world", default="device", choices=("device", "legacy"),
+                    help="generator world of the tuning recordings (device: the device-like world; legacy: the "
+                         "render the first verification was fitted on)")
     ap.add_argument("--cache", type=Path, default=REPO / ".cache" / "fe_device")
     ap.add_argument("--sets", nargs="+", default=["svoe", "mvpe"], choices=["svoe", "mvpe"])
     ap.add_argument("--stride", type=int, default=1, help="every this many PV frames (the machine is shared)")
@@ -184,12 +184,12 @@ def main() -> None:
     os.environ.setdefault("EGOGRAPH_CACHE", str(args.cache / "models"))
 
     from egograph.core.config import load_config
-    from egograph.core.resources import default_config, synth_config
+    from egograph.core.resources import default_config
     from egograph.frontend.verify import FALLBACK_FEATURES, FEATURES, expected_calibration_error
     from egograph.steps.detect import detect
     from egograph.steps.recording import open_recording
     from egograph.steps.settings import EgographConfig
-    from egograph.synth.benchset import rgb_benchmark_set
+    from egograph.synth.benchset import rgb_benchmark_set, world_config
 
     cfg = load_config(EgographConfig, default_config(), ["frontend.verify=all", *args.overrides])
     fc = cfg.frontend
@@ -202,7 +202,7 @@ def main() -> None:
                 d = {k: z[k] for k in z.files if k != "visible"}
                 n_visible = z["visible"]
         else:
-            roots = rgb_benchmark_set(args.seeds, args.frames, config=synth_config(args.synth_config), cache=args.cache)
+            roots = rgb_benchmark_set(args.seeds, args.frames, config=world_config(args.world), cache=args.cache)
             parts, n_visible = [], []
             for r, root in enumerate(roots):
                 rec = open_recording(root, cfg)

@@ -1,6 +1,7 @@
 """The benchmark set: cached synthetic recordings, and the observations lifted from them.
 
-Recordings (no RGB) live under ``CACHE/f<frames>[_<overrides>]/seed<seed>``. A cached recording is
+Recordings (no RGB) live under ``CACHE/f<frames>[_<overrides>]/seed<seed>`` (the legacy world) or
+``CACHE/device/f<frames>[_<overrides>]/seed<seed>`` (the device world: :data:`BENCH_WORLDS`). A cached recording is
 reused when its seed, length and scene config match; when only the detection front-ends differ,
 its detections are re-simulated (``redetect``) instead of re-rendering everything.
 
@@ -21,6 +22,7 @@ import numpy as np
 
 from egograph.core.config import load_config, to_dict
 from egograph.core.errors import InputError
+from egograph.core.resources import synth_config
 from egograph.geometry.observations import Observations
 from egograph.io.recording import Recording
 from egograph.synth.config import SynthConfig
@@ -52,10 +54,33 @@ def rendered_config(config: dict) -> dict:
     return out
 
 
-def set_dir(cache: str | Path, frames: int, overrides: Sequence[str] = ()) -> Path:
-    """The folder of one benchmark set: ``CACHE/f<frames>`` plus a tag of the generator overrides."""
+BENCH_WORLDS = ("device", "legacy")
+"""Worlds the benchmark sets are built in (``--world`` of the bench tools): ``device`` (the default
+since issue 38: synth/device-svoe, device-mvpe) and ``legacy`` (synth/svoe, mvpe: the world every
+record before issue 38 was made in, kept so that those records stay reproducible)."""
+
+
+def world_config(world: str, primary: str = "svoe") -> Path:
+    """The packaged synth config of a benchmark ``world`` (:data:`BENCH_WORLDS`) whose demo tracks the
+    ``primary`` detection set (svoe or mvpe; both sets are written into every recording either way)."""
+    if world not in BENCH_WORLDS:
+        raise ValueError(f"benchmark world {world!r}: one of {', '.join(BENCH_WORLDS)}")
+    return synth_config(primary if world == "legacy" else f"device-{primary}")
+
+
+def add_world_argument(ap) -> None:
+    """``--world {device,legacy}`` (default device) on a bench tool's argparse parser: the world its
+    benchmark set is built in (:func:`world_config`)."""
+    ap.add_argument("--world", default="device", choices=BENCH_WORLDS,
+                    help="generator world of the benchmark set: device (the default: photographic surfaces, the PV "
+                         "camera, hands) or legacy (the world of the records made before issue 38)")
+
+
+def set_dir(cache: str | Path, frames: int, overrides: Sequence[str] = (), world: str = "legacy") -> Path:
+    """The folder of one benchmark set: ``CACHE/f<frames>`` plus a tag of the generator overrides;
+    under ``CACHE/device/`` in the device world (legacy sets keep the folders they always had)."""
     tag = "_".join(o.replace("=", "-").replace(".", "_") for o in overrides)
-    return Path(cache) / f"f{frames}{'_' + tag if tag else ''}"
+    return Path(cache) / ("device" if world == "device" else "") / f"f{frames}{'_' + tag if tag else ''}"
 
 
 def benchmark_set(seeds: Sequence[int], frames: int, *, config: str | Path, cache: str | Path,
@@ -67,7 +92,7 @@ def benchmark_set(seeds: Sequence[int], frames: int, *, config: str | Path, cach
     want = to_dict(cfg)
     roots = []
     for seed in seeds:
-        root = set_dir(cache, frames, overrides) / f"seed{seed}"
+        root = set_dir(cache, frames, overrides, cfg.world) / f"seed{seed}"
         meta_path = root / "recording.json"
         meta = json.loads(meta_path.read_text()) if meta_path.exists() else None
         have = meta["config"] if meta else None
@@ -91,7 +116,7 @@ def rgb_benchmark_set(seeds: Sequence[int], frames: int, *, config: str | Path, 
     cfg = load_config(SynthConfig, config, [f"frames={frames}", *overrides])
     out = []
     for seed in seeds:
-        root = set_dir(cache, frames, overrides) / f"seed{seed}"
+        root = set_dir(cache, frames, overrides, cfg.world) / f"seed{seed}"
         meta = root / "recording.json"
         have = json.loads(meta.read_text()) if meta.exists() else {}
         ok = have.get("revision") == GENERATOR_REVISION and have.get("pv_revision") == PV_REVISION \
