@@ -543,12 +543,12 @@ def print_curves(con, det_set: str, reports: dict) -> None:
 
 # ------------------------------------------------------------------ parser
 
-# Measured (issue 31) on the project's 2-core machine while other benchmarks ran on it; README.md
+# Measured (the demo: issue 31; the tests: 2026-12-04) on the project's 2-core machine while other benchmarks ran on it; README.md
 # quotes the same sentence (tests/test_demo.py checks).
 DEMO_TIMES = ("On 2 cores shared with other benchmark runs (load average 15-18), bash tools/demo.sh took "
               "8 min 49 s from a fresh clone (creating .venv from pip's cache included; 4 min 20 s of CPU "
-              "time) and bash tools/test.sh 17 min 39 s (835 tests; 10 min 42 s of CPU time); an idle "
-              "machine takes less.")
+              "time); bash tools/test.sh 11 min 41 s, from a fresh clone beside one benchmark run (creating "
+              ".venv included; 974 tests; 13 min 6 s of CPU time); an idle machine takes less.")
 
 DEMO_EPILOG = """\
 Steps: 1. a synthetic recording (depth, poses, annotations, simulated SVOE and MVPE detections;
