@@ -164,12 +164,12 @@ def emitted(d: dict, stages, threshold: float) -> np.ndarray:
 
 
 def main() -> None:
+    from egograph.synth.benchset import add_world_argument, rgb_benchmark_set, world_config
+
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--seeds", type=int, nargs="+", default=[27, 28])
     ap.add_argument("--frames", type=int, default=300)
-    ap.add_argument("--world", default="device", choices=("device", "legacy"),
-                    help="generator world of the tuning recordings (device: the device-like world; legacy: the "
-                         "render the first verification was fitted on)")
+    add_world_argument(ap)   # the tuning recordings' world (the first verification was fitted in legacy)
     ap.add_argument("--cache", type=Path, default=REPO / ".cache" / "fe_device")
     ap.add_argument("--sets", nargs="+", default=["svoe", "mvpe"], choices=["svoe", "mvpe"])
     ap.add_argument("--stride", type=int, default=1, help="every this many PV frames (the machine is shared)")
@@ -189,7 +189,6 @@ def main() -> None:
     from egograph.steps.detect import detect
     from egograph.steps.recording import open_recording
     from egograph.steps.settings import EgographConfig
-    from egograph.synth.benchset import rgb_benchmark_set, world_config
 
     cfg = load_config(EgographConfig, default_config(), ["frontend.verify=all", *args.overrides])
     fc = cfg.frontend

@@ -298,10 +298,12 @@ class FrameDetector:
         n_p = table.shape[1]
         top = np.argsort(-rank, axis=1, kind="stable")[:, :cfg.verify_top_k]
         feats, shapes = {}, {}
+        tex_p = np.zeros(n_p, bool)                 # per proposal: scored with its local features
         for k in np.unique(top):
             c = crop(rgb, boxes[k], cfg.crop_margin)
             feats[int(k)] = self.verifier.features(c)
             shapes[int(k)] = c.shape[:2]
+            tex_p[k] = textured(feats[int(k)], shapes[int(k)], cfg)
         inl = np.zeros((len(ids), n_p))
         spread = np.zeros((len(ids), n_p))
         colour = np.zeros((len(ids), n_p))
@@ -311,8 +313,6 @@ class FrameDetector:
         listed = np.zeros((len(ids), n_p), bool)
         listed[np.repeat(np.arange(len(ids)), top.shape[1]), top.ravel()] = True
         prob = np.zeros((len(ids), n_p))
-        tex_p = np.zeros(n_p, bool)                 # per proposal: scored with its local features
-        rows_out = []
         for a, inst in enumerate(ids):
             ks = top[a]
             others = np.delete(table, a, axis=0)
@@ -321,19 +321,16 @@ class FrameDetector:
             inl_margin = inl[a, ks] - (other_inl[:, ks].max(axis=0) if len(other_inl) else 0.0)
             w = rank[a, ks] if white is not None else np.zeros(len(ks))
             x = feature_rows(table[a, ks], cos_margin, w, inl[a, ks], spread[a, ks], inl_margin, colour[a, ks])
-            tex = np.array([textured(feats[int(k)], shapes[int(k)], cfg) for k in ks])
-            p = np.where(tex, probability(x, self.coef[0]), probability(fallback_rows(x), self.coef[1]))
-            prob[a, ks] = p
-            tex_p[ks] = tex
+            tex = tex_p[ks]
+            prob[a, ks] = np.where(tex, probability(x, self.coef[0]), probability(fallback_rows(x), self.coef[1]))
             if self.collect is not None:
                 for j, k in enumerate(ks):
                     self.collect.append((i, inst, tuple(boxes[k]), bool(tex[j]), x[j], feats[int(k)].n,
                                          min(shapes[int(k)])))
-            rows_out.append((a, inst, ks, tex))
         mine = owned(prob, listed)
         cal = np.where(np.isfinite(mine), calibrate(prob, tex_p[None, :], self.coef[2]), -np.inf)
         rows = []
-        for a, inst, ks, tex in rows_out:
+        for a, inst in enumerate(ids):
             k = pick(cal[a], boxes, cfg.verify_threshold, (guides or {}).get(inst), cfg.guidance_radius_px)
             if k is not None:
                 rows.append((inst, kept[k].box, 1.0 if tex_p[k] else 0.0, float(cal[a, k])))
