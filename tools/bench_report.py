@@ -390,6 +390,19 @@ SECTIONS: tuple[Section, ...] = (
             sizes=(("quick", "2 sequences x 150 frames with PV RGB, stages detect, lift, track, eval"),
                    ("full", "8 sequences x 3000 frames with PV RGB, stages detect, lift, track, eval")),
             modules=SET_TRACKING + FRONTEND + ("egograph/cli",), quick_min=12),
+    Section("bench_run-device", "`egograph run` on Dask in the device world: 8 recordings, 2 workers against 1, and a kill",
+            "The dataset run of the section above at a larger size, on device-world recordings (issue 38: "
+            "photographic surfaces, the PV camera model, hands) with PV RGB: 8 sequences through detect, lift, track "
+            "(memory, kf, graph) and eval with one local worker and with two, a 2-worker run killed half way and "
+            "resumed, and the projection of 50 recordings x 10,000 frames on 16 workers from these per-stage costs. "
+            "The sequences are generated 2 at a time before the timed runs.",
+            f"{PY} tools/bench_run.py --config synth/device-svoe --sequences 8 --frames 1000 "
+            "--stages detect,lift,track,eval --kill-after 0.5 --parallel 2 --workdir .cache/bench_run --json-tag device",
+            quick=f"{PY} tools/bench_run.py --config synth/device-svoe --sequences 2 --frames 150 "
+            "--stages detect,lift,track,eval --kill-after 0.5 --parallel 2 --workdir .cache/bench_run --json-tag device",
+            sizes=(("quick", "2 device-world sequences x 150 frames with PV RGB, stages detect, lift, track, eval"),
+                   ("full", "8 device-world sequences x 1000 frames with PV RGB, stages detect, lift, track, eval")),
+            modules=SET_TRACKING + FRONTEND + ("egograph/cli",), quick_min=12),
     Section("bench_synth", "Synthetic generator and reader speed",
             "Frames per CPU-second of the generator (one process, Mesa's rasteriser on one thread) without RGB and "
             "with RGB (OpenGL rasteriser and the ray-cast reference renderer), in the legacy world and the device "

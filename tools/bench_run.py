@@ -51,19 +51,34 @@ PACKAGE_ROOT = Path(egograph.__file__).resolve().parents[1]
 RUN = "import sys; from egograph.cli.main import main; sys.exit(main(sys.argv[1:]))"
 
 
-def make_dataset(root: Path, n: int, frames: int, config: str, rgb: bool = False) -> Path:
+def _make_sequence(ds: Path, seed: int, frames: int, config: str, rgb: bool) -> str | None:
     from egograph.core.config import load_config
     from egograph.core.resources import config_argument
     from egograph.steps.synth import synth
     from egograph.synth.config import SynthConfig
 
+    cfg = load_config(SynthConfig, config_argument(config), [f"frames={frames}", f"pv.rgb={str(rgb).lower()}"])
+    t = time.perf_counter()
+    r = synth(ds / f"seq{seed:02d}", cfg, seed=seed, progress=False)
+    return None if r is None else f"generated seq{seed:02d} ({frames} frames) in {time.perf_counter() - t:.0f} s"
+
+
+def make_dataset(root: Path, n: int, frames: int, config: str, rgb: bool = False, parallel: int = 1) -> Path:
+    """Sequences seq01..seqNN (seeds 1..N) under ``root/dataset-NxF[-rgb]``, those already there kept;
+    ``parallel`` processes at once (each sequence is one seed's bytes whichever process makes it)."""
+    import concurrent.futures
+
     ds = root / f"dataset-{n}x{frames}{'-rgb' if rgb else ''}"
-    for seed in range(1, n + 1):
-        cfg = load_config(SynthConfig, config_argument(config), [f"frames={frames}", f"pv.rgb={str(rgb).lower()}"])
-        t = time.perf_counter()
-        r = synth(ds / f"seq{seed:02d}", cfg, seed=seed, progress=False)
-        if r is not None:
-            print(f"generated seq{seed:02d} ({frames} frames) in {time.perf_counter() - t:.0f} s", flush=True)
+    if parallel <= 1:
+        results = (_make_sequence(ds, seed, frames, config, rgb) for seed in range(1, n + 1))
+        for msg in results:
+            if msg:
+                print(msg, flush=True)
+        return ds
+    with concurrent.futures.ProcessPoolExecutor(parallel) as pool:
+        for msg in pool.map(_make_sequence, *zip(*[(ds, s, frames, config, rgb) for s in range(1, n + 1)])):
+            if msg:
+                print(msg, flush=True)
     return ds
 
 
@@ -196,6 +211,8 @@ def main() -> None:
     ap.add_argument("--config", default="synth/svoe", help="synthetic-recording config (default synth/svoe)")
     ap.add_argument("--stages", default="lift,track,eval", help="with detect, the sequences are made with PV RGB")
     ap.add_argument("--trackers", default="memory,kf,graph")
+    ap.add_argument("--parallel", type=int, default=1,
+                    help="generate the sequences in this many processes (the runs are timed after, alone)")
     ap.add_argument("--detections", default="mvpe", choices=["svoe", "mvpe"],
                     help="the detection set (with detect: the enrollment; mvpe matches the instance photos, which "
                          "every recording has; svoe needs each instance's box in svoe.txt)")
@@ -213,7 +230,8 @@ def main() -> None:
     stages = [s.strip() for s in args.stages.split(",")]
     try:
         t = time.perf_counter()
-        ds = make_dataset(work, args.sequences, args.frames, args.config, rgb="detect" in stages)
+        ds = make_dataset(work, args.sequences, args.frames, args.config, rgb="detect" in stages,
+                          parallel=args.parallel)
         t_synth = time.perf_counter() - t
         rows = {}
         for workers in (1, 2):
