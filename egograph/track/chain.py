@@ -26,6 +26,8 @@ from egograph.track.switchable import (
     switch_clipped,
     switch_prior,
     switchable_between,
+    switchable_closed,
+    switchable_closed_values,
 )
 
 
@@ -70,7 +72,9 @@ def add_break_factors(graph: gtsam.NonlinearFactorGraph, values: gtsam.Values, k
     """Motion-break factor between landmarks k-1 and k (and the switch variable, if any).
     ``kind``: 'switchable' | 'dcs' | 'still' (a plain Gaussian zero-motion factor); default cfg.switches."""
     kind = kind or cfg.switches
-    if kind == "switchable":
+    if kind == "switchable" and cfg.switch_solve == "closed":
+        graph.add(switchable_closed(L(k - 1), L(k), cfg.still_sigma_m, cfg.switch_sigma))
+    elif kind == "switchable":
         graph.add(switchable_between(L(k - 1), L(k), S(k), cfg.still_sigma_m))
         graph.add(switch_prior(S(k), cfg.switch_sigma))
         values.insert(S(k), np.array([1.0]))
@@ -108,6 +112,8 @@ def solve_lm(graph: gtsam.NonlinearFactorGraph, values: gtsam.Values, max_iterat
 def _switch_values(result: gtsam.Values | None, landmarks: np.ndarray, cfg: GraphConfig) -> np.ndarray:
     """Effective switch (0-1) per chunk boundary k-1 -> k, index k-1."""
     n = len(landmarks)
+    if cfg.switches == "switchable" and cfg.switch_solve == "closed":
+        return switchable_closed_values(landmarks, cfg.still_sigma_m, cfg.switch_sigma).reshape(max(n - 1, 0))
     if cfg.switches == "switchable":
         return np.array([switch_clipped(result, S(k)) for k in range(1, n)])
     return dcs_switch_values(landmarks, cfg.still_sigma_m, dcs_phi(cfg.switch_sigma)).reshape(max(n - 1, 0))
@@ -158,6 +164,8 @@ def _solve_chain(world, cov, chunk, init, cfg: GraphConfig) -> tuple[np.ndarray,
         # its neighbours), which keeps the Python CustomFactors in small graphs: GTSAM's cost
         # per CustomFactor call grows with the size of the graph it sits in.
         windows = _candidate_windows(np.flatnonzero(implied < cfg.prepass_keep) + 1, n, cfg.prepass_window)
+        if cfg.switch_solve == "closed":
+            return _solve_windows_closed(world, cov, chunk, landmarks, implied, windows, cfg)
         for lo, hi, own_lo, own_hi in _window_pieces(windows, cfg.prepass_max_window, cfg.prepass_window):
             rows = (chunk >= lo) & (chunk < hi)
             kinds = ["still" if implied[k - 1] >= cfg.prepass_keep else "switchable" for k in range(lo + 1, hi)]
@@ -172,6 +180,40 @@ def _solve_chain(world, cov, chunk, init, cfg: GraphConfig) -> tuple[np.ndarray,
     result = solve_lm(graph, values, cfg.max_iterations)
     landmarks = _landmarks_of(result, n)
     return landmarks, _switch_values(result, landmarks, cfg)
+
+
+def _solve_windows_closed(world, cov, chunk, landmarks, implied, windows, cfg: GraphConfig):
+    """Every candidate window [lo, hi) of a chain solved in one Levenberg-Marquardt problem, the
+    windows as disjoint components: landmarks keyed by their chunk in the whole chain, started from
+    the DCS ``landmarks``; a boundary DCS found clearly still (``implied`` >= ``prepass_keep``) gets a
+    plain zero-motion factor, every other one the closed-form switchable factor. Landmarks outside
+    the windows keep their DCS values, their boundaries switch 1. -> (landmarks, switches)."""
+    n = len(landmarks)
+    sw = np.ones(n - 1)
+    if not windows:
+        return landmarks, sw
+    graph, values = gtsam.NonlinearFactorGraph(), gtsam.Values()
+    inside = np.zeros(n, bool)
+    closed = np.zeros(n, bool)   # boundary k (chunks k-1, k) has a switchable factor
+    for lo, hi in windows:
+        inside[lo:hi] = True
+        for k in range(lo, hi):
+            values.insert(L(k), gtsam.Point3(*landmarks[k]))
+            if k > lo:
+                kind = "still" if implied[k - 1] >= cfg.prepass_keep else "switchable"
+                closed[k] = kind == "switchable"
+                add_break_factors(graph, values, k, cfg, kind)
+    rows = inside[chunk]
+    keys = np.array([L(k) for k in range(n)], np.uint64)
+    add_detection_factors(graph, keys[chunk[rows]], world[rows], cov[rows], cfg.noise)
+    result = solve_lm(graph, values, cfg.max_iterations)
+    idx = np.flatnonzero(inside)
+    landmarks = landmarks.copy()
+    landmarks[idx] = np.array([np.asarray(result.atPoint3(L(int(k)))) for k in idx]).reshape(len(idx), 3)
+    s_all = switchable_closed_values(landmarks, cfg.still_sigma_m, cfg.switch_sigma)
+    ks = np.flatnonzero(closed)
+    sw[ks - 1] = s_all[ks - 1]
+    return landmarks, sw
 
 
 def _candidate_windows(boundaries: np.ndarray, n: int, pad: int) -> list[tuple[int, int]]:

@@ -18,6 +18,9 @@ KERNELS = ("cauchy", "huber", "geman_mcclure", "tukey", "none")
 SWITCHES = ("switchable", "dcs")
 """Motion-break factors (``graph.switches``)."""
 
+SWITCH_SOLVES = ("closed", "explicit")
+"""How switchable factors are solved (``graph.switch_solve``)."""
+
 SCORE_THRESHOLD = 0.6
 """The paper's acceptance threshold on the matcher score (cosine similarity): the default of
 ``track.score_threshold`` (baselines) and ``graph.score_threshold``. They mean the same thing but
@@ -279,15 +282,24 @@ class GraphConfig(Checked):
     still_sigma_m: float = knob(0.05, "sigma of the zero-motion factor between consecutive landmarks, metres", gt=0.0)
     switch_sigma: float = knob(0.5, "sigma of the prior pulling each switch to 1; a break costs 0.5/sigma^2 and "
                                     "fires where landmarks differ by more than still_sigma_m/switch_sigma", gt=0.0)
-    switches: str = knob("switchable", "motion-break factor: 'switchable' (switch variables, CustomFactor) or "
-                                       "'dcs' (dynamic covariance scaling, closed form, all C++)", choices=SWITCHES)
+    switches: str = knob("switchable", "motion-break factor: 'switchable' (a switch per boundary, solved as "
+                                       "switch_solve says) or 'dcs' (dynamic covariance scaling: another weight "
+                                       "curve that breaks at the same gap, all C++)", choices=SWITCHES)
+    switch_solve: str = knob("closed", "switchable only: 'closed' solves each switch in closed form (its optimum "
+                                       "given the landmarks, which leaves a Geman-McClure kernel on the zero-motion "
+                                       "factor: the same objective, all C++, every candidate window of a chain in one "
+                                       "solve; egograph.track.switchable); 'explicit' keeps the switch variables as "
+                                       "Python CustomFactors, solved window by window (the reference, several times "
+                                       "slower)", choices=SWITCH_SOLVES)
     dcs_prepass: bool = knob(True, "switchable only: a DCS solve first; boundaries it finds clearly still get a plain "
-                                   "zero-motion factor, the rest explicit switches (far fewer Python CustomFactors)")
+                                   "zero-motion factor, the rest switchable ones (a smaller problem; with explicit "
+                                   "switches, far fewer Python CustomFactors)")
     prepass_keep: float = knob(0.95, "a boundary whose DCS-implied switch is at least this is clearly still",
                                min=0.0, max=1.0)
     prepass_window: int = knob(10, "each candidate break is solved with this many chunks of the chain either side",
                                min=1)
-    prepass_max_window: int = knob(60, "merged windows longer than this many chunks are solved in overlapping pieces "
+    prepass_max_window: int = knob(60, "explicit switches: merged windows longer than this many chunks are solved in "
+                                       "overlapping pieces "
                                        "of this length (prepass_window chunks of context at each cut), so the cost "
                                        "grows linearly with the recording, not with the longest run of candidates",
                                        min=1)

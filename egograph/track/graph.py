@@ -45,7 +45,7 @@ import numpy as np
 from egograph.core.types import PositionInterval, TrackResult
 from egograph.core.units import TICKS_PER_SECOND
 from egograph.geometry.observations import Observations
-from egograph.track.answers import confidences, offline_answers, operating_point, predictions
+from egograph.track.answers import confidences, gc_paused, offline_answers, operating_point, predictions
 from egograph.track.causal import causal_tracker
 from egograph.track.chain import chunk_index, solve_instance_offline
 from egograph.track.config import GraphConfig
@@ -264,18 +264,21 @@ def graph_tracker(obs: Observations, timestamps: Sequence[int], cfg: GraphConfig
     cfg = dataclasses.replace(cfg, noise=dataclasses.replace(cfg.noise, scale=scales[-1]))
     n_excluded = _places_and_chains(solutions, t_frames, cfg, negative, support)
     intervals = sorted((iv for s in solutions for iv in s.intervals), key=lambda iv: (iv.instance, iv.t_start))
-    pieces = [p for s in solutions for p in (s.pieces if s.pieces is not None else s.intervals)]
-    per_frame = per_frame_predictions(pieces, t_frames)
     answers = None
-    if cfg.answers.every_frame:  # every frame answered, calibrated; the files hold the operating point
-        answers = {int(t): [] for t in t_frames}
-        for s in solutions:
-            if s.answers is not None:
-                xyz, raw, kind = s.answers
-                predictions(s.instance, xyz, confidences(raw, kind, cfg.answers, "offline", scales[-1]), t_frames,
-                            answers)
-        answers = {t: sorted(p, key=lambda q: q.instance) for t, p in answers.items()}
-        per_frame = operating_point(answers, cfg.answers)
+    if not cfg.answers.every_frame:
+        pieces = [p for s in solutions for p in (s.pieces if s.pieces is not None else s.intervals)]
+        per_frame = per_frame_predictions(pieces, t_frames)
+    else:  # every frame answered, calibrated; the files hold the operating point
+        with gc_paused():
+            answers = {t: [] for t in t_frames.tolist()}
+            for s in solutions:
+                if s.answers is not None:
+                    xyz, raw, kind = s.answers
+                    predictions(s.instance, xyz, confidences(raw, kind, cfg.answers, "offline", scales[-1]), t_frames,
+                                answers)
+            if ids != sorted(ids):  # the solutions come in the order of ``instances``
+                answers = {t: sorted(p, key=lambda q: q.instance) for t, p in answers.items()}
+            per_frame = operating_point(answers, cfg.answers)
     metadata = {
         "tracker": "graph-causal" if causal else "graph",
         "backfilled": (not causal),

@@ -21,8 +21,25 @@ implied switch for reporting. DCS's switch falls below 0.5 where ``d^2 > 3 phi``
 ``phi = 1 / (3 sigma_s^2)`` (:func:`dcs_phi`) puts its breaks exactly where the switchable
 factor puts them (see the tests).
 
-The switch factor is a ``gtsam.CustomFactor`` with analytic Jacobians: there are few of
-them (one per chunk boundary), while the many detection factors stay C++ factors.
+The switchable factor's own closed form (:func:`switchable_closed`, the default way it is solved):
+with the landmarks fixed, the switch's optimum ``s* = 1 / (1 + d^2 sigma_s^2)`` lies in (0, 1], so
+the clip is inactive, and putting it back into the factor's cost leaves
+
+    0.5 * (s*^2 d^2 + (1 - s*)^2 / sigma_s^2) = 0.5 * d^2 / (1 + sigma_s^2 d^2)
+                                              = 0.5 * c^2 d^2 / (c^2 + d^2),   c = 1 / sigma_s,
+
+which is exactly GTSAM's Geman-McClure loss of width ``c`` on the whitened gap ``d``; its
+iteratively reweighted weight ``c^4 / (c^2 + d^2)^2`` is ``s*^2``, the switched factor's own. So
+a ``BetweenFactorPoint3`` under that kernel has the same minima over the landmarks as the factor
+with its switch variable, solved all in C++, and the switch is read back as ``s*`` from the
+solved landmarks (:func:`switchable_closed_values`). Unlike DCS (a different weight curve that
+only breaks at the same gap) this is the same objective. Solved with the explicit switch
+variables, Levenberg-Marquardt can also stall a switch at exactly 1, where the clip's slope
+ends; the closed form has no such edge.
+
+The explicit switch factor is a ``gtsam.CustomFactor`` with analytic Jacobians (``switch_solve:
+explicit``, the reference): there are few of them (one per chunk boundary), while the many
+detection factors stay C++ factors.
 """
 
 from __future__ import annotations
@@ -105,3 +122,27 @@ def dcs_switch_values(landmarks: np.ndarray, still_sigma_m: float, phi: float) -
 def switch_clipped(values: gtsam.Values, key_switch: int) -> float:
     """The effective switch ``psi(s)`` of a solved switch variable."""
     return switch_weight(float(values.atVector(key_switch)[0]))[0]
+
+
+@functools.lru_cache(maxsize=64)
+def _closed_noise(still_sigma_m: float, switch_sigma: float) -> gtsam.noiseModel.Base:
+    """The Geman-McClure noise model of :func:`switchable_closed`, one per (sigma, switch sigma),
+    shared read-only by every factor that uses it."""
+    base = gtsam.noiseModel.Isotropic.Sigma(3, still_sigma_m)
+    return gtsam.noiseModel.Robust.Create(gtsam.noiseModel.mEstimator.GemanMcClure.Create(1.0 / switch_sigma), base)
+
+
+def switchable_closed(key_a: int, key_b: int, still_sigma_m: float, switch_sigma: float) -> gtsam.BetweenFactorPoint3:
+    """``SwitchableBetween`` with its switch eliminated in closed form: zero motion from landmark
+    ``key_a`` to ``key_b`` (Point3, metres, isotropic ``still_sigma_m``) under a Geman-McClure
+    kernel of width ``1 / switch_sigma``, the same cost over the landmarks as
+    :func:`switchable_between` plus :func:`switch_prior` at the switch's optimum (module docstring)."""
+    return gtsam.BetweenFactorPoint3(key_a, key_b, gtsam.Point3(0, 0, 0), _closed_noise(still_sigma_m, switch_sigma))
+
+
+def switchable_closed_values(landmarks: np.ndarray, still_sigma_m: float, switch_sigma: float) -> np.ndarray:
+    """The optimal switch ``1 / (1 + d^2 switch_sigma^2)`` of every consecutive pair of ``landmarks``
+    (n, 3), metres: (n-1,), ``d`` the gap whitened by ``still_sigma_m``."""
+    diff = np.asarray(landmarks, float)
+    d2 = ((diff[1:] - diff[:-1]) ** 2).sum(axis=1) / still_sigma_m**2
+    return 1.0 / (1.0 + switch_sigma**2 * d2)
