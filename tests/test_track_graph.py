@@ -109,6 +109,17 @@ def test_dcs_fast_path_gives_the_same_intervals():
         assert abs(frames_of(x)[1] - frames_of(y)[1]) <= 3
 
 
+@pytest.mark.parametrize("seed", [3, 5])
+def test_closed_form_switches_give_the_explicit_switches_intervals(seed):
+    obs = make_obs(scenario(seed=seed, twin_share=0.3))
+    closed = graph_tracker(obs, stamps(), GraphConfig(negative_evidence=False))
+    explicit = graph_tracker(obs, stamps(), GraphConfig(negative_evidence=False, switch_solve="explicit"))
+    assert len(closed.intervals) == len(explicit.intervals) >= 2
+    for x, y in zip(closed.intervals, explicit.intervals):
+        assert np.linalg.norm(np.subtract(x.xyz, y.xyz)) < 0.01
+        assert abs(frames_of(x)[0] - frames_of(y)[0]) <= 3 and abs(frames_of(x)[1] - frames_of(y)[1]) <= 3
+
+
 def test_same_input_same_output():
     obs = make_obs(scenario(seed=5))
     a = graph_tracker(obs, stamps(), GraphConfig())
@@ -241,8 +252,9 @@ def test_long_windows_are_cut_into_pieces_whose_owned_ranges_partition_them(lo, 
 
 def test_cutting_candidate_windows_keeps_the_intervals():
     obs = make_obs(scenario(seed=3, twin_share=0.3))
-    whole = graph_tracker(obs, stamps(), GraphConfig(negative_evidence=False, prepass_max_window=10_000))
-    cut = graph_tracker(obs, stamps(), GraphConfig(negative_evidence=False, prepass_max_window=25))
+    explicit = dict(negative_evidence=False, switch_solve="explicit")   # the closed form solves windows whole
+    whole = graph_tracker(obs, stamps(), GraphConfig(**explicit, prepass_max_window=10_000))
+    cut = graph_tracker(obs, stamps(), GraphConfig(**explicit, prepass_max_window=25))
     assert len(whole.intervals) == len(cut.intervals) >= 2
     for x, y in zip(whole.intervals, cut.intervals):
         assert np.linalg.norm(np.subtract(x.xyz, y.xyz)) < 0.01

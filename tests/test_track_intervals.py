@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 from egograph.core.errors import InputError
-from egograph.core.types import PositionInterval, Prediction
+from egograph.core.types import PositionInterval, Prediction, predictions_of
 from egograph.track.config import GraphConfig
 from egograph.track.graph import graph_tracker
 from egograph.track.intervals import per_frame_predictions, read_intervals_json, write_intervals_json
@@ -64,3 +64,15 @@ def test_smoothing_noisy_per_frame_results_gives_one_interval_per_stand():
     a, b = res.intervals
     assert np.linalg.norm(np.subtract(a.xyz, [1.0, 0.9, 2.0])) < 0.02
     assert abs((a.t_end - T0) / FRAME - 59) <= 2 and abs((b.t_start - T0) / FRAME - 60) <= 2
+
+
+def test_predictions_made_at_once_equal_those_made_one_by_one():
+    xyz = np.array([[1.0, 2.0, 3.0], [-0.5, 0.25, 1e-9], [4.0, 5.0, 6.0]])
+    score = np.array([0.9, 0.0, 1.0], np.float32)
+    many = predictions_of(np.int64(7), xyz, score)
+    assert many == [Prediction(7, tuple(float(v) for v in row), float(s)) for row, s in zip(xyz, score)]
+    assert all(type(p.instance) is int and type(p.score) is float and type(p.xyz[0]) is float for p in many)
+    with pytest.raises(ValueError, match=r"row 1"):
+        predictions_of(7, np.array([[1.0, 2.0, 3.0], [1.0, np.nan, 3.0]]), np.array([0.5, 0.5]))
+    with pytest.raises(ValueError, match="negative"):
+        predictions_of(-1, xyz, score)

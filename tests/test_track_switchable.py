@@ -14,6 +14,8 @@ from egograph.track.switchable import (
     switch_prior,
     switch_weight,
     switchable_between,
+    switchable_closed,
+    switchable_closed_values,
 )
 
 A, B, SW = gtsam.symbol("l", 0), gtsam.symbol("l", 1), gtsam.symbol("s", 1)
@@ -130,3 +132,61 @@ def test_dcs_switch_values_are_the_pairwise_values_bit_for_bit():
     want = [dcs_switch_value(landmarks[k - 1], landmarks[k], 0.05, 3.3) for k in range(1, 400)]
     assert dcs_switch_values(landmarks, 0.05, 3.3).tolist() == want
     assert dcs_switch_values(landmarks[:1], 0.05, 3.3).shape == (0,)
+
+
+@pytest.mark.parametrize("gap_sigmas", [0.0, 0.5, 1.9, 2.0, 2.1, 5.0, 40.0])
+def test_closed_form_costs_what_the_switched_factor_costs_at_its_best_switch(gap_sigmas):
+    # Geman-McClure of width 1/sigma_s on the gap = the switched factor plus its prior at s* (and s*
+    # is that pair's minimum over s): the same objective over the landmarks.
+    still, sigma_s = 0.05, 0.5
+    a, b = np.array([0.3, -0.2, 1.0]), np.array([0.3, -0.2, 1.0]) + gap_sigmas * still * np.array([0.6, 0.0, 0.8])
+    s_star = float(switchable_closed_values(np.array([a, b]), still, sigma_s)[0])
+    assert s_star == pytest.approx(1 / (1 + gap_sigmas**2 * sigma_s**2))
+
+    def switched(s):
+        v = _values(a, b, s)
+        return switchable_between(A, B, SW, still).error(v) + switch_prior(SW, sigma_s).error(v)
+
+    closed = switchable_closed(A, B, still, sigma_s).error(_values(a, b, 1.0))
+    assert closed == pytest.approx(switched(s_star), rel=1e-12, abs=1e-15)
+    for other in (s_star - 0.01, s_star + 0.01):
+        if 0.0 <= other <= 1.0:
+            assert switched(other) > switched(s_star)
+
+
+def test_closed_form_solve_finds_the_switched_solve_or_a_lower_cost():
+    # A chain of 30 landmarks with a 0.3 m move and a 2 cm one: both solves break at the same
+    # boundary and agree on the landmarks; with explicit switches LM can stall a switch at exactly 1
+    # (where the clip's slope ends), so the closed form's cost is never higher.
+    rng = np.random.default_rng(0)
+    n, still, sigma_s = 30, 0.05, 0.5
+    truth = np.zeros((n, 3))
+    truth[12:] += [0.3, 0.0, 0.0]
+    truth[20:] += [0.0, 0.02, 0.0]
+    dets = truth[:, None, :] + 0.02 * rng.standard_normal((n, 5, 3))
+    init = truth + 0.01 * rng.standard_normal((n, 3))
+    params = gtsam.LevenbergMarquardtParams()
+    params.setMaxIterations(200)
+    params.setRelativeErrorTol(1e-12)
+    out = {}
+    for form in ("explicit", "closed"):
+        g, v = gtsam.NonlinearFactorGraph(), gtsam.Values()
+        for k in range(n):
+            v.insert(gtsam.symbol("l", k), gtsam.Point3(*init[k]))
+            for p in dets[k]:
+                g.add(gtsam.PriorFactorPoint3(gtsam.symbol("l", k), gtsam.Point3(*p), gtsam.noiseModel.Isotropic.Sigma(3, 0.02)))
+            if k and form == "explicit":
+                g.add(switchable_between(gtsam.symbol("l", k - 1), gtsam.symbol("l", k), gtsam.symbol("s", k), still))
+                g.add(switch_prior(gtsam.symbol("s", k), sigma_s))
+                v.insert(gtsam.symbol("s", k), np.array([1.0]))
+            elif k:
+                g.add(switchable_closed(gtsam.symbol("l", k - 1), gtsam.symbol("l", k), still, sigma_s))
+        r = gtsam.LevenbergMarquardtOptimizer(g, v, params).optimize()
+        lm = np.array([np.asarray(r.atPoint3(gtsam.symbol("l", k))) for k in range(n)])
+        sw = (np.array([switch_clipped(r, gtsam.symbol("s", k)) for k in range(1, n)]) if form == "explicit"
+              else switchable_closed_values(lm, still, sigma_s))
+        out[form] = lm, sw, g.error(r)
+    (l_e, s_e, e_e), (l_c, s_c, e_c) = out["explicit"], out["closed"]
+    assert np.flatnonzero(s_e < 0.5).tolist() == np.flatnonzero(s_c < 0.5).tolist() == [11]
+    assert np.abs(l_e - l_c).max() < 1e-3
+    assert e_c <= e_e + 1e-9
