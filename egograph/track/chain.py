@@ -161,8 +161,9 @@ def _solve_chain(world, cov, chunk, init, cfg: GraphConfig) -> tuple[np.ndarray,
         implied = _switch_values(None, landmarks, dcs)
         sw = np.ones(n - 1)
         # Each candidate break is decided in a local window of the chain (a switch only couples
-        # its neighbours), which keeps the Python CustomFactors in small graphs: GTSAM's cost
-        # per CustomFactor call grows with the size of the graph it sits in.
+        # its neighbours). Closed-form switches: all windows in one C++ solve. Explicit ones: a
+        # solve per window (piece), which keeps the Python CustomFactors in small graphs, as
+        # GTSAM's cost per CustomFactor call grows with the size of the graph it sits in.
         windows = _candidate_windows(np.flatnonzero(implied < cfg.prepass_keep) + 1, n, cfg.prepass_window)
         if cfg.switch_solve == "closed":
             return _solve_windows_closed(world, cov, chunk, landmarks, implied, windows, cfg)
