@@ -274,7 +274,7 @@ def listening(pid: int) -> list[tuple[str, int]]:
 
 @pytest.mark.slow
 def test_worker_killed_during_a_task_loses_nothing(dataset, reference_run, tmp_path):
-    from egograph.steps.run import close_client, open_client, run_dataset
+    from egograph.steps.run import close_client, open_client, run_dataset, worker_threads
 
     cfg = config()
     plan = plan_run(dataset, tmp_path / "runs", cfg, stages=["eval"], trackers=TRACKERS.split(","))
@@ -283,6 +283,8 @@ def test_worker_killed_during_a_task_loses_nothing(dataset, reference_run, tmp_p
     try:
         pids = client.run(os.getpid)
         assert len(pids) == 2
+        # each local worker is one core: detect's onnxruntime takes that many threads, not the machine's
+        assert worker_threads() is None and client.submit(worker_threads, pure=False).result() == 1
         for pid in [os.getpid(), *pids.values()]:  # the local cluster listens on loopback only, no 8787
             socks = listening(pid)
             assert socks and all(ip == "127.0.0.1" and port != 8787 for ip, port in socks), socks

@@ -51,7 +51,9 @@ class FrontendConfig(Checked):
     resize: str = knob("stretch", "how a crop becomes a square input: 'stretch' or 'pad' (letterbox, mean "
                                   "colour)", choices=RESIZE_MODES)
     batch: int = knob(16, "crops encoded per onnxruntime call", min=1)
-    threads: int = knob(2, "onnxruntime intra-op threads (the cores of the machine)", min=1)
+    threads: int = knob(2, "onnxruntime intra-op threads (the cores of the machine; in `egograph run`, each Dask "
+                           "worker's own thread count instead, 1 on the local cluster); the embeddings do not "
+                           "depend on it", min=1)
     spinning: bool = knob(False, "let idle onnxruntime threads busy-wait for the next run (on: slightly lower "
                                  "latency on an idle machine; they take the CPU from the other stages and "
                                  "processes meanwhile)")
