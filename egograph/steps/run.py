@@ -441,12 +441,18 @@ def stage_detect(spec: dict) -> None:
     from egograph.steps.detect import carry_detections, detect
 
     cfg = _config(spec)
-    # A worker is a share of the machine's cores: onnxruntime's own thread pool would otherwise take
-    # every core in every worker (frontend.threads), and two workers on two cores ran 1.15x one.
-    # The thread count does not change the detections (the embeddings are the same bits).
+    # A worker is a share of the machine's cores: onnxruntime's, OpenCV's and Open3D's own thread
+    # pools would otherwise take every core in every worker (two workers on two cores ran 1.15x one
+    # with onnxruntime's alone, 1.55x with OpenCV's and Open3D's left). The thread counts do not
+    # change the detections (the embeddings are the same bits; OpenCV splits images by rows).
     n = worker_threads()
     if n is not None:
+        import cv2
+        import open3d as o3d
+
         cfg.frontend.threads = n
+        cv2.setNumThreads(n)
+        o3d.utility.set_max_threads(n)
     rec = _open(spec, cfg)
     require_pv_images(rec)
     if spec.get("adapt"):
