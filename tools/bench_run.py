@@ -67,16 +67,14 @@ def make_dataset(root: Path, n: int, frames: int, config: str, rgb: bool = False
     """Sequences seq01..seqNN (seeds 1..N) under ``root/dataset-NxF[-rgb]``, those already there kept;
     ``parallel`` processes at once (each sequence is one seed's bytes whichever process makes it)."""
     import concurrent.futures
+    import contextlib
 
     ds = root / f"dataset-{n}x{frames}{'-rgb' if rgb else ''}"
-    if parallel <= 1:
-        results = (_make_sequence(ds, seed, frames, config, rgb) for seed in range(1, n + 1))
-        for msg in results:
-            if msg:
-                print(msg, flush=True)
-        return ds
-    with concurrent.futures.ProcessPoolExecutor(parallel) as pool:
-        for msg in pool.map(_make_sequence, *zip(*[(ds, s, frames, config, rgb) for s in range(1, n + 1)])):
+    seeds = range(1, n + 1)
+    args = ([ds] * n, seeds, [frames] * n, [config] * n, [rgb] * n)
+    with contextlib.ExitStack() as stack:
+        pool = stack.enter_context(concurrent.futures.ProcessPoolExecutor(parallel)) if parallel > 1 else None
+        for msg in (pool.map if pool else map)(_make_sequence, *args):
             if msg:
                 print(msg, flush=True)
     return ds

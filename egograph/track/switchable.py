@@ -114,9 +114,15 @@ def dcs_switch_value(a: np.ndarray, b: np.ndarray, still_sigma_m: float, phi: fl
 def dcs_switch_values(landmarks: np.ndarray, still_sigma_m: float, phi: float) -> np.ndarray:
     """:func:`dcs_switch_value` of every consecutive pair of ``landmarks`` (n, 3) at once: (n-1,), the
     same bits (each row's three squares summed in the same order)."""
-    diff = np.asarray(landmarks, float)
-    d2 = ((diff[1:] - diff[:-1]) ** 2).sum(axis=1) / still_sigma_m**2
+    d2 = whitened_gaps2(landmarks, still_sigma_m)
     return np.minimum(1.0, 2.0 * phi / (phi + d2))
+
+
+def whitened_gaps2(landmarks: np.ndarray, still_sigma_m: float) -> np.ndarray:
+    """Squared gap ``d^2`` between every consecutive pair of ``landmarks`` (n, 3), metres, whitened by
+    ``still_sigma_m``: (n-1,), each row's three squares summed in order."""
+    diff = np.asarray(landmarks, float)
+    return ((diff[1:] - diff[:-1]) ** 2).sum(axis=1) / still_sigma_m**2
 
 
 def switch_clipped(values: gtsam.Values, key_switch: int) -> float:
@@ -143,6 +149,4 @@ def switchable_closed(key_a: int, key_b: int, still_sigma_m: float, switch_sigma
 def switchable_closed_values(landmarks: np.ndarray, still_sigma_m: float, switch_sigma: float) -> np.ndarray:
     """The optimal switch ``1 / (1 + d^2 switch_sigma^2)`` of every consecutive pair of ``landmarks``
     (n, 3), metres: (n-1,), ``d`` the gap whitened by ``still_sigma_m``."""
-    diff = np.asarray(landmarks, float)
-    d2 = ((diff[1:] - diff[:-1]) ** 2).sum(axis=1) / still_sigma_m**2
-    return 1.0 / (1.0 + switch_sigma**2 * d2)
+    return 1.0 / (1.0 + switch_sigma**2 * whitened_gaps2(landmarks, still_sigma_m))
