@@ -198,6 +198,10 @@ def test_the_readme_score_tables_are_rendered_from_the_records():
     assert bench_report.README_BEGIN in readme and bench_report.README_END in readme
     block = bench_report.readme_scores(docs)
     assert block is not None and block in readme
+    # end to end from pixels first (egograph detect's own detections), the simulated detections after
+    first = block.split("\n\n")[0].splitlines()
+    assert first[0].startswith("| set | detections on the instance | tracker |")
+    assert [r.split(" | ")[2] for r in first[2:]] == ["memory (paper's pipeline)", "**graph** (offline)"] * 2
     # a changed record changes the README block: nothing in it is typed by hand
     tampered = bench_report.with_readme_scores(readme.replace(block, "| stale |"), docs)
     assert tampered == readme

@@ -18,6 +18,7 @@ import pytest
 
 VENV_BIN = Path(sys.executable).parent
 PNG_SIGNATURE = b"\x89PNG\r\n\x1a\n"
+PROGRESS = re.compile(r"\|\s*\d+/\d+ \[")   # a progress bar's update: "...| 24/150 [00:04<00:24, ..."
 # the demo's rows: per detection set, memory and kf on reference lifting, and memory, kf, graph,
 # graph-causal on robust lifting
 DEMO_ROWS = [f"{s} {t} ({m} lift)" for s in ("svoe", "mvpe")
@@ -94,36 +95,72 @@ def test_demo_help_and_readme_say_how_long_the_demo_and_the_tests_take():
     assert flat(DEMO_TIMES.replace(" `egograph demo --help` says the same.", "")) in flat(readme)
 
 
-@pytest.mark.slow
-def test_the_demo_ends_with_the_path_of_its_pictures(tmp_path):
-    out = tmp_path / "demo"
-    p = subprocess.run([str(VENV_BIN / "egograph"), "demo", str(out), "--frames", "150", "--seed", "2"],
+def run_demo(out: Path, *extra: str) -> list[str]:
+    p = subprocess.run([str(VENV_BIN / "egograph"), "demo", str(out), "--frames", "150", "--seed", "2", *extra],
                        capture_output=True, text=True, timeout=1200, env={**os.environ, "COLUMNS": "100"})
     assert p.returncode == 0, p.stderr[-3000:]
     lines = p.stdout.splitlines()
+    # the set-up and the steps before the tables stay short (stderr: warnings; the progress bars'
+    # updates, one line each in a log and one line a bar on a terminal, are not counted)
+    first_table = next(i for i, line in enumerate(lines) if "IT3DEgo evaluation" in line)
+    other = [line for line in p.stderr.splitlines() if line.strip() and not PROGRESS.search(line)]
+    assert first_table + len(other) < 120, (first_table, other[-20:])
+    return lines
+
+
+def check_demo(out: Path, lines: list[str], sets: list[str], pv_frames: bool) -> None:
+    """The demo's verdicts, curves and pictures for the detection sets ``sets`` it tracked (with the
+    sheet of PV frames around the breaks when the recording has PV images)."""
     index = out / "plots" / "index.html"
     assert lines[-1] == str(index.resolve())
-    # the set-up and the steps before the tables stay short (stderr: progress bars, warnings)
-    first_table = next(i for i, line in enumerate(lines) if "IT3DEgo evaluation" in line)
-    assert first_table + len(p.stderr.splitlines()) < 120, (first_table, p.stderr[-2000:])
     # per detection set, whether the graph beats every baseline at every threshold, and if not why
     verdicts = [line for line in lines if line.startswith(("graph: ", "graph-causal: "))]
-    assert len(verdicts) == 4, verdicts
+    assert len(verdicts) == 2 * len(sets), verdicts
     for i, line in enumerate(lines):
         if line.startswith(("graph: below", "graph-causal: below")):
             assert lines[i + 1].startswith("  why: "), lines[i:i + 2]
     # per detection set, AP per threshold and whether each egograph tracker's curve passes every baseline's point
     curves = [line for line in lines if line.startswith(("graph (robust lift): curve", "graph-causal (robust lift): curve"))]
-    assert len(curves) == 4, curves
-    assert sum(line.startswith("average precision over confidence") for line in lines) == 2
+    assert len(curves) == 2 * len(sets), curves
+    assert sum(line.startswith("average precision over confidence") for line in lines) == len(sets)
+    rows = [row for row in DEMO_ROWS if row.split()[0] in sets]
     images = page_images(index)
-    want = {"metrics.png", "curves.png"} | {f"{kind}_{re.sub(r'[^A-Za-z0-9_.-]+', '_', row).strip('._')}.png"
-                              for row in DEMO_ROWS for kind in ("timeline", "map")}
+    want = {"metrics.png", "curves.png"} | ({"pv_sheet.png"} if pv_frames else set()) | {f"{kind}_{re.sub(r'[^A-Za-z0-9_.-]+', '_', row).strip('._')}.png"
+                              for row in rows for kind in ("timeline", "map")}
     assert set(images) == want, set(images) ^ want
     for name in images:
         data = (index.parent / name).read_bytes()
         w, h = png_size(data)
         assert decode_png(data).size == (w, h) and w >= 300 and h >= 150, name
     text = index.read_text()
-    for row in DEMO_ROWS:  # the evaluation table names every tracker
+    for row in rows:  # the evaluation table names every tracker
         assert row in text, row
+
+
+@pytest.mark.slow
+def test_the_demo_detects_in_device_like_frames_and_ends_with_the_path_of_its_pictures(tmp_path):
+    out = tmp_path / "demo"
+    lines = run_demo(out)
+    assert any("device-like PV frames" in line for line in lines)
+    # egograph detect ran on the rendered frames, both enrollments, and said what it found
+    for det_set in ("SVOE", "MVPE"):
+        summary = [line for line in lines if line.startswith(f"{det_set}: 150 PV frames, ")]
+        assert len(summary) == 1, det_set
+    assert sorted(p.name for p in (out / "detections").iterdir()) == ["mvpe", "svoe"]
+    assert len(list((out / "recording" / "synth_seq" / "pv").glob("*.png"))) == 150
+    # a set in which nothing was found is said so and not tracked; the others are tracked and scored
+    empty = {s for s in ("svoe", "mvpe") if f"{s.upper()}: no instance found in any PV frame; its trackers are not run" in lines}
+    tracked = [s for s in ("svoe", "mvpe") if s not in empty]
+    assert tracked, "seed 2's SVOE enrollment finds its instances in some frames"
+    for det_set in tracked:
+        assert any(f.stat().st_size for f in (out / "detections" / det_set).glob("*.txt"))
+    check_demo(out, lines, tracked, pv_frames=True)
+
+
+@pytest.mark.slow
+def test_the_simulated_demo_tracks_both_detection_sets(tmp_path):
+    out = tmp_path / "demo"
+    lines = run_demo(out, "--simulated")
+    assert not (out / "detections").exists()
+    assert not list((out / "recording" / "synth_seq" / "pv").glob("*.png"))   # no RGB rendered
+    check_demo(out, lines, ["svoe", "mvpe"], pv_frames=False)

@@ -252,8 +252,9 @@ SECTIONS: tuple[Section, ...] = (
             "which no knob was tuned in this world; the front-end's tuning seeds are 27-28): the share of true "
             "detections, the visible instance-frames found, and the graph against the paper's pipeline on those "
             "detections, with the opt-in verification (issue 39, `frontend.verify=all`, its detections tracked at "
-            "score threshold 0.3) as a second front-end row in the full tier (the quick tier and the record made so far "
-            "have the current front-end only). The front-end's baseline in this world.",
+            "score threshold 0.3) as a second front-end row in the full tier (the quick tier has the current front-end "
+            "only). MVPE's proposals are `geometry+image` since stop 47 (before: `geometry`, 76 / 177 detections on "
+            "the instance). The README's first table (end to end from pixels) is this record's default rows.",
             f"{PY} tools/bench_frontend_trackers.py --world device --seeds 21 22 23 24 25 26 --frames 300 --no-sot "
             f"--no-guide --no-causal {VERIFY_VARIANT} --json-tag device",
             quick=f"{PY} tools/bench_frontend_trackers.py --world device --seeds 21 --frames 300 --no-sot --no-guide "
@@ -871,9 +872,10 @@ def _table(doc: dict, title: str) -> dict:
     return next(it for it in doc["items"] if it["type"] == "table" and it["title"].startswith(title))
 
 
-README_RECORDS = ("bench_trackers-heldout-robust", "bench_causal-heldout6")
-"""The records the README's score tables are rendered from. The README quotes them at the sizes the
-docs state (12 and 6 held-out recordings x 3000 frames), so it reads its own copies in
+README_RECORDS = ("bench_frontend_trackers-device", "bench_trackers-heldout-robust", "bench_causal-heldout6")
+"""The records the README's score tables are rendered from: egograph end to end from pixels first
+(issue 39), then the trackers on simulated detections. The README quotes them at the sizes the
+docs state (6 device-world recordings x 300 frames; 12 and 6 held-out recordings x 3000 frames), so it reads its own copies in
 ``docs/bench/readme/``: a full-tier regeneration of these sections refreshes them; a quick-tier one
 changes only docs/benchmarks.md."""
 
@@ -890,13 +892,38 @@ def readme_docs(bench_dir: Path, docs: dict[str, dict]) -> dict[str, dict]:
     return out
 
 
+def pixels_rows(doc: dict) -> list[str]:
+    """The README's first table: egograph end to end from pixels (``egograph detect``'s own
+    detections, the default front-end) against the paper's pipeline on the same detections, from
+    the device-world front-end record: per set, the share of emitted detections on the instance and
+    the IT3DEgo figures of memory + reference lifting (the paper) and the graph on robust lifting."""
+    t = _table(doc, "Trackers on each detection source")
+    col = {c: i for i, c in enumerate(t["columns"])}
+    lines = ["| set | detections on the instance | tracker | P@0.25 | R@0.25 | P@1.5 | R@1.5 | L2 (m) |",
+             "|---|---|---|---|---|---|---|---|"]
+    for det_set in ("svoe", "mvpe"):
+        for r in t["rows"]:
+            if r[col["source"]] != "detect" or r[col["set"]] != det_set:
+                continue
+            true, emitted, share = r[col["true / all detections"]]
+            l2 = r[col["L2 (m)"]]
+            cells = [f"{r[col[c]]:.1f}" for c in ("P@0.25", "R@0.25", "P@1.5", "R@1.5")] + \
+                [f"{l2:.2f}" if isinstance(l2, (int, float)) else "-"]
+            name = {"memory + reference (paper)": "memory (paper's pipeline)",
+                    "graph + robust": "**graph** (offline)"}.get(r[col["tracker"]], r[col["tracker"]])
+            lines.append(f"| {det_set.upper()} | {true} / {emitted} ({share:.0f} %) | {name} | " + " | ".join(cells) + " |")
+    return lines
+
+
 def readme_scores(docs: dict[str, dict]) -> str | None:
     """The README's score tables (issue 29): the trackers on the 12 held-out recordings and
     graph-causal against lag, from their records; None without those records."""
+    fe = docs.get("bench_frontend_trackers-device")
     tr, ca = docs.get("bench_trackers-heldout-robust"), docs.get("bench_causal-heldout6")
-    if tr is None or ca is None:
+    if tr is None or ca is None or fe is None:
         return None
-    lines = ["| set | tracker | P@0.25 | R@0.25 | P@1.5 | R@1.5 | L2 (m) |", "|---|---|---|---|---|---|---|"]
+    lines = pixels_rows(fe) + [""]
+    lines += ["| set | tracker | P@0.25 | R@0.25 | P@1.5 | R@1.5 | L2 (m) |", "|---|---|---|---|---|---|---|"]
     for det_set in ("SVOE", "MVPE"):
         t = _table(tr, det_set)
         col = {c: i for i, c in enumerate(t["columns"])}
@@ -915,7 +942,7 @@ def readme_scores(docs: dict[str, dict]) -> str | None:
         lines.append(f"| {det_set.upper()} P / R @0.25, L2 (m) | "
                      + " | ".join(f"{by[n][2]:.1f} / {by[n][3]:.1f}, {by[n][4]:.2f}" for n in names) + " |")
     made = []
-    for doc in (tr, ca):
+    for doc in (fe, tr, ca):
         reg, commit = regeneration_of(doc), (doc.get("egograph") or {}).get("commit") or "no commit"
         made.append(f"`{doc['tool']}` {reg.get('tier', 'by hand')} tier at `{commit[:10]}`" if reg
                     else f"`{doc['tool']}` by hand at `{commit[:10]}`")

