@@ -146,7 +146,7 @@ def test_the_demo_detects_in_device_like_frames_and_ends_with_the_path_of_its_pi
     for det_set in ("SVOE", "MVPE"):
         summary = [line for line in lines if line.startswith(f"{det_set}: 150 PV frames, ")]
         assert len(summary) == 1, det_set
-    assert sorted(p.name for p in (out / "detections").iterdir()) == ["mvpe", "svoe"]
+    assert sorted(p.name for p in (out / "detections").iterdir()) == ["mvpe", "proposal_embeddings.npz", "svoe"]
     assert len(list((out / "recording" / "synth_seq" / "pv").glob("*.png"))) == 150
     # a set in which nothing was found is said so and not tracked; the others are tracked and scored
     empty = {s for s in ("svoe", "mvpe") if f"{s.upper()}: no instance found in any PV frame; its trackers are not run" in lines}

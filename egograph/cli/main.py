@@ -496,15 +496,17 @@ def cmd_demo(args) -> int:
 
 def demo_detect(con, rec, cfg, out: Path) -> tuple[dict, dict]:
     """``egograph detect`` of both enrollments in ``rec``'s PV frames, into ``out/<set>``; prints each
-    summary. -> (set -> detections folder to lift, set -> tracking config), without the sets in
-    which nothing was found (said so). MVPE tracks with the packaged frontend-mvpe config, as
+    summary; the proposals' embeddings are kept in ``out/proposal_embeddings.npz`` for the second
+    enrollment (and a rerun). -> (set -> detections folder to lift, set -> tracking config), without
+    the sets in which nothing was found (said so). MVPE tracks with the packaged frontend-mvpe config, as
     `egograph detect` advises."""
     from egograph.core.resources import packaged_config_or_error
     from egograph.steps.detect import detect
 
     specs, configs = {}, {}
     for det_set in ("svoe", "mvpe"):
-        report = detect(rec, det_set, cfg, out / det_set)
+        # both enrollments match the same proposals (geometry+image): MVPE reads SVOE's embeddings
+        report = detect(rec, det_set, cfg, out / det_set, embeddings=out / "proposal_embeddings.npz")
         if report is None:
             con.print(f"{det_set.upper()}: {out / det_set} already holds these detections")
         else:
