@@ -588,12 +588,12 @@ def print_curves(con, det_set: str, reports: dict) -> None:
 
 # ------------------------------------------------------------------ parser
 
-# Measured (the demo: issue 31; the tests: 2026-12-04) on the project's 2-core machine while other benchmarks ran on it; README.md
+# Measured (the demo from pixels and the tests: stop 47, 2026-12-04) on the project's 2-core machine while other benchmarks ran on it; README.md
 # quotes the same sentence (tests/test_demo.py checks).
-DEMO_TIMES = ("On 2 cores shared with other benchmark runs (load average 15-18), bash tools/demo.sh took "
-              "8 min 49 s from a fresh clone (creating .venv from pip's cache included; 4 min 20 s of CPU "
-              "time); bash tools/test.sh 11 min 41 s, from a fresh clone beside one benchmark run (creating "
-              ".venv included; 974 tests; 13 min 6 s of CPU time); an idle machine takes less.")
+DEMO_TIMES = ('On an idle 2-core machine, bash tools/demo.sh took 7 min 17 s from a fresh clone (creating .venv'
+              " from pip's cache included; rendering 900 device-like PV frames took 3 min of it and detect "
+              '2 min 25 s; 11 min 25 s of CPU time); bash tools/test.sh 12 min 21 s, from a fresh clone '
+              '(creating .venv included; 986 tests; 16 min 36 s of CPU time).')
 
 DEMO_EPILOG = """\
 Steps: 1. a synthetic recording in the device world (depth, poses, annotations, and PV frames that
