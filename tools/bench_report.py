@@ -875,8 +875,8 @@ def _table(doc: dict, title: str) -> dict:
 README_RECORDS = ("bench_frontend_trackers-device", "bench_trackers-heldout-robust", "bench_causal-heldout6")
 """The records the README's score tables are rendered from: egograph end to end from pixels first
 (issue 39), then the trackers on simulated detections. The README quotes them at the sizes the
-docs state (6 device-world recordings x 300 frames; 12 and 6 held-out recordings x 3000 frames), so it reads its own copies in
-``docs/bench/readme/``: a full-tier regeneration of these sections refreshes them; a quick-tier one
+docs state (6 device-world recordings x 300 frames; 12 and 6 held-out recordings x 3000 frames),
+so it reads its own copies in ``docs/bench/readme/``: a full-tier regeneration of these sections refreshes them; a quick-tier one
 changes only docs/benchmarks.md."""
 
 README_DIR_NAME = "readme"

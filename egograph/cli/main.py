@@ -441,16 +441,16 @@ def cmd_demo(args) -> int:
     cfg = load_config(EgographConfig, DEFAULT_CONFIG)
     rec = open_recording(rec_dir, cfg)
     print_summary(summarize(rec), con, inputs=False)  # `egograph info` also lists every input found
-    specs = {"svoe": "svoe", "mvpe": "mvpe"}   # detection set -> what lift reads (a set's name, or a folder)
-    configs = {"svoe": DEFAULT_CONFIG, "mvpe": DEFAULT_CONFIG}
+    # detection set -> (what lift reads: the set's name or a detections folder, the tracking config)
+    inputs = {det_set: (det_set, DEFAULT_CONFIG) for det_set in ("svoe", "mvpe")}
     if pixels:
         con.rule("2. detect: the instances found in the PV frames (egograph detect)")
-        specs, configs = demo_detect(con, rec, cfg, out / "detections")
+        inputs = demo_detect(con, rec, cfg, out / "detections")
     reports = {}
     graph_runs = {}
     results = {}  # row name -> results folder, for the pictures
-    for det_set, spec in specs.items():
-        cfg = load_config(EgographConfig, configs[det_set])
+    for det_set, (spec, config) in inputs.items():
+        cfg = load_config(EgographConfig, config)
         for mode in ("reference", "robust"):
             cfg.lift.mode = mode
             con.rule(f"{3 if pixels else 2}. {det_set.upper()}: lift ({mode}) and track")
@@ -476,7 +476,7 @@ def cmd_demo(args) -> int:
     g = graph_runs[(primary, "graph")]
     print_intervals(con, g.intervals, rec, g.metadata, labels(rec))
     con.rule(f"{step + 1}. IT3DEgo evaluation (all frames)" + (", on egograph detect's detections" if pixels else ""))
-    for det_set in specs:
+    for det_set in inputs:
         sub = {k: v for k, v in reports.items() if k.startswith(det_set)}
         con.print(f"[bold]{det_set.upper()}[/bold] (ratios against the published pipeline: kf on reference lifting)")
         print_comparison({k.split(" ", 1)[1]: v for k, v in sub.items()}, "kf (reference lift)", con)
@@ -494,16 +494,16 @@ def cmd_demo(args) -> int:
     return 0
 
 
-def demo_detect(con, rec, cfg, out: Path) -> tuple[dict, dict]:
+def demo_detect(con, rec, cfg, out: Path) -> dict[str, tuple[Path, Path]]:
     """``egograph detect`` of both enrollments in ``rec``'s PV frames, into ``out/<set>``; prints each
     summary; the proposals' embeddings are kept in ``out/proposal_embeddings.npz`` for the second
-    enrollment (and a rerun). -> (set -> detections folder to lift, set -> tracking config), without
-    the sets in which nothing was found (said so). MVPE tracks with the packaged frontend-mvpe config, as
-    `egograph detect` advises."""
+    enrollment (and a rerun). -> set -> (its detections folder to lift, its tracking config), without
+    the sets in which nothing was found (said so). MVPE tracks with the packaged frontend-mvpe
+    config, as `egograph detect` advises."""
     from egograph.core.resources import packaged_config_or_error
     from egograph.steps.detect import detect
 
-    specs, configs = {}, {}
+    inputs = {}
     for det_set in ("svoe", "mvpe"):
         # both enrollments match the same proposals (geometry+image): MVPE reads SVOE's embeddings
         report = detect(rec, det_set, cfg, out / det_set, embeddings=out / "proposal_embeddings.npz")
@@ -514,9 +514,9 @@ def demo_detect(con, rec, cfg, out: Path) -> tuple[dict, dict]:
         if not any(f.stat().st_size for f in (out / det_set).glob("*.txt")):
             con.print(f"{det_set.upper()}: no instance found in any PV frame; its trackers are not run")
             continue
-        specs[det_set] = out / det_set
-        configs[det_set] = packaged_config_or_error("frontend-mvpe") if det_set == "mvpe" else DEFAULT_CONFIG
-    return specs, configs
+        inputs[det_set] = (out / det_set,
+                           packaged_config_or_error("frontend-mvpe") if det_set == "mvpe" else DEFAULT_CONFIG)
+    return inputs
 
 
 def _dominance_why(ours, base: dict, misses: list) -> str:
