@@ -201,7 +201,9 @@ def test_the_readme_score_tables_are_rendered_from_the_records():
     # end to end from pixels first (egograph detect's own detections), the simulated detections after
     first = block.split("\n\n")[0].splitlines()
     assert first[0].startswith("| set | detections on the instance | tracker |")
-    assert [r.split(" | ")[2] for r in first[2:]] == ["memory (paper's pipeline)", "**graph** (offline)"] * 2
+    assert [r.split(" | ")[2] for r in first[2:]] == ["memory (paper's pipeline)", "**graph** (offline)"] * 4
+    # the default front-end, then the verified one (the record's verify variant), per set
+    assert [r.split(" | ")[0] for r in first[2::2]] == ["| SVOE", "| SVOE, verified", "| MVPE", "| MVPE, verified"]
     # a changed record changes the README block: nothing in it is typed by hand
     tampered = bench_report.with_readme_scores(readme.replace(block, "| stale |"), docs)
     assert tampered == readme

@@ -119,7 +119,8 @@ def test_file_errors_name_file_line_and_value(tmp_path):
     assert message(SynthConfig, path=p).startswith(f"{p}:2: not valid YAML")
     missing = message(SynthConfig, path=tmp_path / "none.yaml")
     assert missing.startswith(f"{tmp_path / 'none.yaml'}: config not found (no file {tmp_path / 'none.yaml'}")
-    assert ("packaged configs: default, frontend-mvpe, synth/device-mvpe, synth/device-svoe, synth/device-tiny, "
+    assert ("packaged configs: default, frontend-mvpe, frontend-svoe, synth/device-mvpe, synth/device-svoe, "
+            "synth/device-tiny, "
             "synth/mvpe, synth/svoe, synth/tiny") in missing
 
 
@@ -228,3 +229,42 @@ def test_the_frontend_mvpe_configuration_is_the_default_with_stricter_graph_stan
     a, b = to_dict(preset), to_dict(default)
     changed = {(s, k) for s in a for k in a[s] if a[s][k] != b[s][k]}
     assert changed == {("graph", "min_observations"), ("graph", "min_inlier_share")}
+
+
+def test_the_frontend_svoe_configuration_shares_one_operating_point_between_detector_and_trackers():
+    """configs/frontend-svoe.yaml turns SVOE verification on, and the trackers' score threshold is the
+    detector's own (a verified score is a probability: the paper's 0.6 on a cosine would drop
+    detections the detector chose to keep); nothing else changes."""
+    from egograph.core.config import to_dict
+    from egograph.core.resources import packaged_config_or_error
+
+    preset = load_config(EgographConfig, packaged_config_or_error("frontend-svoe"))
+    default = load_config(EgographConfig, packaged_config_or_error("default"))
+    assert preset.frontend.verify == "svoe"
+    assert preset.graph.score_threshold == preset.track.score_threshold == preset.frontend.verify_threshold == 0.3
+    a, b = to_dict(preset), to_dict(default)
+    changed = {(s, k) for s in a for k in a[s] if a[s][k] != b[s][k]}
+    assert changed == {("frontend", "verify"), ("frontend", "verify_threshold"), ("graph", "score_threshold"),
+                       ("track", "score_threshold")}
+
+
+@pytest.mark.parametrize("enroll, config, sets, hint", [
+    ("svoe", "default", [], ""),
+    ("mvpe", "default", [], "--config frontend-mvpe"),
+    ("svoe", "frontend-svoe", [], "--config frontend-svoe"),
+    ("svoe", "default", ["frontend.verify=svoe"], "--set graph.score_threshold=0.15"),
+    ("mvpe", "default", ["frontend.verify=all", "frontend.verify_threshold=0.2"],
+     "--config frontend-mvpe --set graph.score_threshold=0.2"),
+    ("mvpe", "frontend-svoe", [], "--config frontend-mvpe"),      # frontend-svoe verifies SVOE only
+])
+def test_detect_names_the_tracking_configuration_that_keeps_its_detections(enroll, config, sets, hint):
+    """`egograph detect` prints the `track` arguments for its detections: MVPE's stricter stands, and a
+    score threshold no higher than the verification's operating point."""
+    import argparse
+
+    from egograph.cli.main import track_hint
+    from egograph.core.resources import config_argument
+
+    args = argparse.Namespace(enroll=enroll, config=config_argument(config), overrides=sets)
+    cfg = load_config(EgographConfig, args.config, sets)
+    assert track_hint(args, cfg) == hint

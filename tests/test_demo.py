@@ -154,6 +154,10 @@ def test_the_demo_detects_in_device_like_frames_and_ends_with_the_path_of_its_pi
     assert tracked, "seed 2's SVOE enrollment finds its instances in some frames"
     for det_set in tracked:
         assert any(f.stat().st_size for f in (out / "detections" / det_set).glob("*.txt"))
+    # SVOE is verified (configs/frontend-svoe.yaml): its score is a probability at or above the
+    # operating point, det_conf says whether local features verified it
+    rows = [line.split() for f in (out / "detections" / "svoe").glob("*.txt") for line in f.read_text().splitlines()]
+    assert all(float(r[5]) in (0.0, 1.0) and 0.3 <= float(r[6]) <= 1.0 for r in rows)
     check_demo(out, lines, tracked, pv_frames=True)
 
 

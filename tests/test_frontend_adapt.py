@@ -257,6 +257,9 @@ def test_detect_adapt_writes_a_self_describing_round_and_skips_done_work(rgb, ca
         rep = detect(rec, "mvpe", cfg, base / out, adapt=teacher, embeddings=base / "proposals.npz", progress=False)
         assert rep.frames == len(rec)
     assert (base / "proposals.npz").is_file() and rep.seconds["encoder"] == 0.0    # the second read them
+    # its summary says so: its frames/s is the scoring's, not the front-end's
+    assert "read with their embeddings from proposals.npz" in rep.summary()
+    assert "frames/s scoring the stored proposals" in rep.summary()
     for f in sorted((base / "r1").glob("*.txt")):
         assert (base / "e1" / f.name).read_text() == (base / "e2" / f.name).read_text() == f.read_text()
     # the head's written scores: a head instance's rows carry the adapted score (>= adapt.threshold)

@@ -30,8 +30,8 @@ PACKAGED = REPO / "egograph" / "configs"
 
 
 def test_packaged_configs_are_listed():
-    assert packaged_configs() == ["default", "frontend-mvpe", "synth/device-mvpe", "synth/device-svoe", "synth/device-tiny",
-                                  "synth/mvpe", "synth/svoe", "synth/tiny"]
+    assert packaged_configs() == ["default", "frontend-mvpe", "frontend-svoe", "synth/device-mvpe", "synth/device-svoe",
+                                  "synth/device-tiny", "synth/mvpe", "synth/svoe", "synth/tiny"]
     assert default_config() == PACKAGED / "default.yaml"
     assert synth_config("tiny") == PACKAGED / "synth" / "tiny.yaml"
 
@@ -63,8 +63,8 @@ def test_a_miss_names_what_was_tried_and_lists_the_packaged_configs(tmp_path, mo
         resolve_config("synth/huge")
     msg = str(err.value)
     assert "no file synth/huge" in msg and "no packaged config synth/huge.yaml" in msg
-    assert ("default, frontend-mvpe, synth/device-mvpe, synth/device-svoe, synth/device-tiny, synth/mvpe, synth/svoe, "
-            "synth/tiny") in msg and "\n" not in msg
+    assert ("default, frontend-mvpe, frontend-svoe, synth/device-mvpe, synth/device-svoe, synth/device-tiny, synth/mvpe, "
+            "synth/svoe, synth/tiny") in msg and "\n" not in msg
     with pytest.raises(ConfigError, match="no packaged config"):
         synth_config("huge")
     with pytest.raises(ConfigError):

@@ -220,14 +220,31 @@ def cmd_detect(args) -> int:
         return 0
     con.print(f"detections ({args.enroll}) -> {args.out}")
     con.print(report.summary())
-    if args.enroll == "mvpe":
-        # the photo matcher's clutter stands need the graph knobs of the packaged frontend-mvpe file
+    hint = track_hint(args, cfg)
+    if hint:
         import shlex
 
         con.print(f"track them with: egograph track {shlex.quote(str(args.rec))} --tracker graph --detections "
-                  f"{shlex.quote(str(args.out))} "
-                  "--config frontend-mvpe --out RESULTS", soft_wrap=True)
+                  f"{shlex.quote(str(args.out))} {hint} --out RESULTS", soft_wrap=True)
     return 0
+
+
+def track_hint(args, cfg) -> str:
+    """The configuration arguments to track ``egograph detect``'s detections with, or '' when the
+    defaults fit: MVPE's clutter stands need the graph knobs of the packaged frontend-mvpe file, and
+    verified detections carry a probability, which the trackers' score_threshold (the paper's 0.6 on
+    a cosine) must not cut above the detector's own operating point (frontend.verify_threshold)."""
+    from egograph.core.resources import packaged_configs, resolve_config
+    from egograph.steps.settings import EgographConfig
+
+    names = {resolve_config(n).resolve(): n for n in packaged_configs()}
+    name = "frontend-mvpe" if args.enroll == "mvpe" else names.get(Path(args.config).resolve(), str(args.config))
+    parts = [] if name == "default" else ["--config", name]
+    t = cfg.frontend.verify_threshold
+    verified = cfg.frontend.verify in ("all", args.enroll)
+    if verified and load_config(EgographConfig, resolve_config(name)).graph.score_threshold > t:
+        parts += ["--set", f"graph.score_threshold={t:g}"]
+    return " ".join(parts)
 
 
 def cmd_track(args) -> int:
@@ -445,7 +462,7 @@ def cmd_demo(args) -> int:
     inputs = {det_set: (det_set, DEFAULT_CONFIG) for det_set in ("svoe", "mvpe")}
     if pixels:
         con.rule("2. detect: the instances found in the PV frames (egograph detect)")
-        inputs = demo_detect(con, rec, cfg, out / "detections")
+        inputs = demo_detect(con, rec, out / "detections")
     reports = {}
     graph_runs = {}
     results = {}  # row name -> results folder, for the pictures
@@ -494,19 +511,25 @@ def cmd_demo(args) -> int:
     return 0
 
 
-def demo_detect(con, rec, cfg, out: Path) -> dict[str, tuple[Path, Path]]:
+def demo_detect(con, rec, out: Path) -> dict[str, tuple[Path, Path]]:
     """``egograph detect`` of both enrollments in ``rec``'s PV frames, into ``out/<set>``; prints each
     summary; the proposals' embeddings are kept in ``out/proposal_embeddings.npz`` for the second
     enrollment (and a rerun). -> set -> (its detections folder to lift, its tracking config), without
-    the sets in which nothing was found (said so). MVPE tracks with the packaged frontend-mvpe
-    config, as `egograph detect` advises."""
+    the sets in which nothing was found (said so). Each set detects and tracks with its packaged
+    front-end config: SVOE verified by local features (frontend-svoe: detector and trackers at one
+    operating point), MVPE with the graph's stricter stands (frontend-mvpe), as `egograph detect`
+    advises."""
     from egograph.core.resources import packaged_config_or_error
     from egograph.steps.detect import detect
+    from egograph.steps.settings import EgographConfig
 
     inputs = {}
     for det_set in ("svoe", "mvpe"):
-        # both enrollments match the same proposals (geometry+image): MVPE reads SVOE's embeddings
-        report = detect(rec, det_set, cfg, out / det_set, embeddings=out / "proposal_embeddings.npz")
+        config = packaged_config_or_error(f"frontend-{det_set}")
+        # both enrollments match the same proposals (geometry+image; verification does not change
+        # them): MVPE reads the embeddings SVOE's pass kept
+        report = detect(rec, det_set, load_config(EgographConfig, config), out / det_set,
+                        embeddings=out / "proposal_embeddings.npz")
         if report is None:
             con.print(f"{det_set.upper()}: {out / det_set} already holds these detections")
         else:
@@ -514,8 +537,7 @@ def demo_detect(con, rec, cfg, out: Path) -> dict[str, tuple[Path, Path]]:
         if not any(f.stat().st_size for f in (out / det_set).glob("*.txt")):
             con.print(f"{det_set.upper()}: no instance found in any PV frame; its trackers are not run")
             continue
-        inputs[det_set] = (out / det_set,
-                           packaged_config_or_error("frontend-mvpe") if det_set == "mvpe" else DEFAULT_CONFIG)
+        inputs[det_set] = (out / det_set, config)
     return inputs
 
 
@@ -598,8 +620,8 @@ DEMO_TIMES = ('On an idle 2-core machine, bash tools/demo.sh took 7 min 17 s fro
 DEMO_EPILOG = """\
 Steps: 1. a synthetic recording in the device world (depth, poses, annotations, and PV frames that
 look like the device's: photographic objects, exposure, noise, motion blur, hands); 2. egograph
-detect finds the instances in those frames, SVOE (the box in one frame) and MVPE (the instance
-photos); 3. per detection set with detections, both lifting modes and every tracker (memory, kf;
+detect finds the instances in those frames, SVOE (the box in one frame, its proposals verified by
+local features: --config frontend-svoe) and MVPE (the instance photos); 3. per detection set with detections, both lifting modes and every tracker (memory, kf;
 graph and graph-causal on robust lifting); 4. the graph's position intervals; 5. the IT3DEgo
 evaluation, ratios against kf on reference lifting; 6. egograph plot of every tracker's results.
 The last line printed is the path of the pictures' index.html. With --simulated: the legacy world

@@ -204,7 +204,8 @@ def _tracker_colour(k: int):
     return colormaps["Dark2"](k % 8)
 
 
-_TRACKER_MARKERS = ("o", "s", "^", "D", "v", "P", "X", "*")
+# nine markers against eight colours: a (marker, colour) pair repeats only after 72 trackers
+_TRACKER_MARKERS = ("o", "s", "^", "D", "v", "P", "X", "*", "h")
 
 
 def timeline_height_in(n_instances: int) -> float:
@@ -548,7 +549,7 @@ def plot_contact_sheet(scene: PlotScene, trackers: Sequence[TrackerRun], scale: 
     handles += [Line2D([], [], marker=_TRACKER_MARKERS[m % len(_TRACKER_MARKERS)], color=_tracker_colour(m),
                        linestyle="", label=run.name) for m, run in enumerate(trackers)]
     fig.suptitle(f"{scene.recording}: predictions projected into PV frames around each break")
-    fig.legend(handles=handles, loc="outside lower center", ncols=len(handles), fontsize=8, frameon=False)
+    fig.legend(handles=handles, loc="outside lower center", ncols=min(len(handles), 4), fontsize=8, frameon=False)
     return png_bytes(fig)
 
 

@@ -186,7 +186,9 @@ class FrontendConfig(Checked):
                                          "(the front-end without verification: 320, 9 %, 30). The trackers' "
                                          "score_threshold (0.6) drops detections below it: track verified detections "
                                          "with --set graph.score_threshold=0.15 (and track.score_threshold for the "
-                                         "baselines)",
+                                         "baselines), as egograph detect's hint says. configs/frontend-svoe.yaml sets "
+                                         "0.3 for detector and trackers alike (the middle of the thresholds that met "
+                                         "the issue's ratios on tuning recordings 27-29; figures in that file)",
                                    min=0.0, max=1.0)
     verify_side_px: int = knob(160, "verification: crops and enrollment views are resampled so that their longer "
                                     "side is this many pixels before SIFT (small crops enlarged)", min=32)

@@ -52,14 +52,18 @@ class DetectReport:
     seconds: dict[str, float] = field(default_factory=lambda: dict.fromkeys(STAGES, 0.0))
     names: list[str] = field(default_factory=list)
     adaptation: object = None    # the head used (egograph.steps.adapt.Adaptation), if adapted
+    stored_from: str | None = None   # proposals and embeddings read from this file (the encoder not run)
 
     def name(self, inst: int) -> str:
         return self.names[inst] if inst < len(self.names) else str(inst)
 
     def summary(self) -> str:
         total = sum(self.seconds.values())
-        lines = [f"{self.frames} PV frames, {self.proposals} proposals encoded ({self.proposals / max(self.frames, 1):.1f}"
-                 f"/frame), {self.frames / max(total, 1e-9):.2f} frames/s; ms/frame: "
+        # with stored embeddings this pass only scores and writes: its speed is not the front-end's
+        how = f"read with their embeddings from {self.stored_from}" if self.stored_from else "encoded"
+        speed = "frames/s scoring the stored proposals" if self.stored_from else "frames/s"
+        lines = [f"{self.frames} PV frames, {self.proposals} proposals {how} ({self.proposals / max(self.frames, 1):.1f}"
+                 f"/frame), {self.frames / max(total, 1e-9):.2f} {speed}; ms/frame: "
                  + ", ".join(f"{k} {1000 * v / max(self.frames, 1):.0f}" for k, v in self.seconds.items())]
         for inst in sorted(set(self.enrolled) | set(self.not_enrolled)):
             if inst in self.enrolled:
@@ -656,6 +660,7 @@ def detect(rec: Recording, enroll: str, cfg, out: str | Path, *, encoder: str | 
     stored = load_proposal_embeddings(embeddings, emb_key) if embeddings is not None else None
     if stored is not None:
         run.stored = stored
+        report.stored_from = Path(embeddings).name
     if fcfg.whiten in ("all", enroll):
         run.use_whitening(background_whitening(rec, run, fcfg, report))
     if images is not None:
