@@ -612,10 +612,10 @@ def print_curves(con, det_set: str, reports: dict) -> None:
 
 # Measured (the demo from pixels and the tests: stop 47, 2026-12-04) on the project's 2-core machine while other benchmarks ran on it; README.md
 # quotes the same sentence (tests/test_demo.py checks).
-DEMO_TIMES = ('On an idle 2-core machine, bash tools/demo.sh took 7 min 17 s from a fresh clone (creating .venv'
-              " from pip's cache included; rendering 900 device-like PV frames took 3 min of it and detect "
-              '2 min 25 s; 11 min 25 s of CPU time); bash tools/test.sh 12 min 21 s, from a fresh clone '
-              '(creating .venv included; 986 tests; 16 min 36 s of CPU time).')
+DEMO_TIMES = ('On an idle 2-core machine, bash tools/demo.sh took 6 min 59 s from a fresh clone (creating .venv'
+              " from pip's cache included; rendering 900 device-like PV frames took 2 min 41 s of it and detect "
+              '2 min 52 s, SVOE verified; 11 min 13 s of CPU time); bash tools/test.sh 11 min 5 s, from a fresh clone '
+              '(creating .venv included; 993 tests; 14 min 50 s of CPU time).')
 
 DEMO_EPILOG = """\
 Steps: 1. a synthetic recording in the device world (depth, poses, annotations, and PV frames that
