@@ -610,8 +610,8 @@ def print_curves(con, det_set: str, reports: dict) -> None:
 
 # ------------------------------------------------------------------ parser
 
-# Measured (the demo from pixels and the tests: stop 47, 2026-12-04) on the project's 2-core machine while other benchmarks ran on it; README.md
-# quotes the same sentence (tests/test_demo.py checks).
+# Measured (the demo from pixels, SVOE verified, and the tests: stop 48, 2026-12-04) from fresh clones on the
+# project's 2-core machine with nothing else running; README.md quotes the same sentence (tests/test_demo.py checks).
 DEMO_TIMES = ('On an idle 2-core machine, bash tools/demo.sh took 6 min 59 s from a fresh clone (creating .venv'
               " from pip's cache included; rendering 900 device-like PV frames took 2 min 41 s of it and detect "
               '2 min 52 s, SVOE verified; 11 min 13 s of CPU time); bash tools/test.sh 11 min 5 s, from a fresh clone '
@@ -621,12 +621,12 @@ DEMO_EPILOG = """\
 Steps: 1. a synthetic recording in the device world (depth, poses, annotations, and PV frames that
 look like the device's: photographic objects, exposure, noise, motion blur, hands); 2. egograph
 detect finds the instances in those frames, SVOE (the box in one frame, its proposals verified by
-local features: --config frontend-svoe) and MVPE (the instance photos); 3. per detection set with detections, both lifting modes and every tracker (memory, kf;
-graph and graph-causal on robust lifting); 4. the graph's position intervals; 5. the IT3DEgo
-evaluation, ratios against kf on reference lifting; 6. egograph plot of every tracker's results.
-The last line printed is the path of the pictures' index.html. With --simulated: the legacy world
-without RGB, its simulated SVOE and MVPE detections tracked instead (the tracker-only benchmark's
-input), step 2 left out.
+local features: --config frontend-svoe) and MVPE (the instance photos); 3. per detection set with
+detections, both lifting modes and every tracker (memory, kf; graph and graph-causal on robust
+lifting); 4. the graph's position intervals; 5. the IT3DEgo evaluation, ratios against kf on
+reference lifting; 6. egograph plot of every tracker's results. The last line printed is the path
+of the pictures' index.html. With --simulated: the legacy world without RGB, its simulated SVOE and
+MVPE detections tracked instead (the tracker-only benchmark's input), step 2 left out.
 
 """ + textwrap.fill(DEMO_TIMES, 96)
 
