@@ -289,3 +289,37 @@ def test_detection_noise_models_are_made_once_per_covariance_and_kernel():
     fresh = gtsam.noiseModel.Robust.Create(gtsam.noiseModel.mEstimator.Cauchy.Create(1.0),
                                            gtsam.noiseModel.Gaussian.Covariance(c))
     assert a.loss(a.mahalanobisDistance(e)) == fresh.loss(fresh.mahalanobisDistance(e))
+
+
+def test_robust_points_from_shared_factors_and_a_deferred_marginal_are_the_same_bits():
+    """The offline solve makes every row's robust-point factor once and asks for a marginal only
+    where one is kept (a place); both must give what a fresh robust_point gives, bit for bit."""
+    from egograph.track.detection_factor import detection_covariances
+    from egograph.track.segments import point_covariance, point_factors, robust_point
+
+    rng = np.random.default_rng(2)
+    world = np.concatenate([A + 0.03 * rng.standard_normal((40, 3)), TWIN + 0.03 * rng.standard_normal((8, 3))])
+    cfg = GraphConfig(negative_evidence=False)
+    cov = detection_covariances(world, camera_at(np.arange(len(world)) * 3.0), cfg.noise)
+    factors = point_factors(world, cov, cfg)
+    rows = np.arange(5, 45)
+    xyz, c = robust_point(world[rows], cov[rows], cfg)
+    shared, none = robust_point(world[rows], cov[rows], cfg, marginal=False, factors=[factors[j] for j in rows])
+    assert none is None and np.array_equal(shared, xyz)
+    assert np.array_equal(point_covariance(world[rows], cov[rows], xyz, cfg), c)
+    assert np.linalg.norm(xyz - A) < 0.02 and np.all(np.linalg.eigvalsh(c) > 0)
+
+
+def test_the_fitted_noise_scale_answers_as_a_run_at_that_fixed_scale():
+    """Each noise-scale round solves afresh: a user who re-runs at the reported scale, without the
+    fit, gets the same intervals and answers, bit for bit."""
+    obs = make_obs(scenario(seed=4, twin_share=0.2))
+    fitted = graph_tracker(obs, stamps(), GraphConfig(negative_evidence=False))
+    rounds = fitted.metadata["noise_scale_rounds"]
+    assert len(rounds) >= 2 and fitted.metadata["noise_scale"] == rounds[-1]   # the fit moved the scale
+    cfg = GraphConfig(negative_evidence=False)
+    fixed = graph_tracker(obs, stamps(), dataclasses.replace(
+        cfg, noise=dataclasses.replace(cfg.noise, auto_scale=False, scale=rounds[-1])))
+    assert len(fitted.intervals) >= 2
+    assert [dataclasses.asdict(iv) for iv in fitted.intervals] == [dataclasses.asdict(iv) for iv in fixed.intervals]
+    assert fitted.per_frame == fixed.per_frame

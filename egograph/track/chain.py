@@ -18,7 +18,7 @@ import gtsam
 import numpy as np
 
 from egograph.track.config import GraphConfig
-from egograph.track.detection_factor import add_detection_factors
+from egograph.track.detection_factor import detection_factors
 from egograph.track.switchable import (
     dcs_between,
     dcs_phi,
@@ -87,17 +87,26 @@ def add_break_factors(graph: gtsam.NonlinearFactorGraph, values: gtsam.Values, k
         raise ValueError(f"unknown switches {kind!r}: 'switchable' or 'dcs'")
 
 
+def _landmark_keys(n: int) -> np.ndarray:
+    return np.array([L(k) for k in range(n)], np.uint64)
+
+
 def _instance_graph(world: np.ndarray, cov: np.ndarray, chunk: np.ndarray, init: np.ndarray, cfg: GraphConfig,
-                    kinds: Sequence[str] | None = None) -> tuple[gtsam.NonlinearFactorGraph, gtsam.Values]:
+                    kinds: Sequence[str] | None = None, factors: list | None = None
+                    ) -> tuple[gtsam.NonlinearFactorGraph, gtsam.Values]:
     """One instance's graph: a landmark per chunk (initial ``init``), break factors between
-    consecutive ones (``kinds[k-1]`` per boundary, default cfg.switches), detection factors."""
+    consecutive ones (``kinds[k-1]`` per boundary, default cfg.switches), detection factors (the
+    rows' ``factors`` when made already, on the landmarks of ``chunk``)."""
     graph = gtsam.NonlinearFactorGraph()
     values = gtsam.Values()
     for k, p in enumerate(init):
         values.insert(L(k), gtsam.Point3(*p))
         if k:
             add_break_factors(graph, values, k, cfg, None if kinds is None else kinds[k - 1])
-    add_detection_factors(graph, np.array([L(k) for k in range(len(init))], np.uint64)[chunk], world, cov, cfg.noise)
+    if factors is None:
+        factors = detection_factors(_landmark_keys(len(init))[chunk], world, cov, cfg.noise)
+    for factor in factors:
+        graph.add(factor)
     return graph, values
 
 
@@ -155,7 +164,8 @@ def _solve_chain(world, cov, chunk, init, cfg: GraphConfig) -> tuple[np.ndarray,
     boundary an explicit switch, and the switchable solve starts from the DCS landmarks."""
     n = len(init)
     if cfg.switches == "switchable" and cfg.dcs_prepass and n > 1:
-        graph, values = _instance_graph(world, cov, chunk, init, cfg, ["dcs"] * (n - 1))
+        factors = detection_factors(_landmark_keys(n)[chunk], world, cov, cfg.noise)  # for both solves below
+        graph, values = _instance_graph(world, cov, chunk, init, cfg, ["dcs"] * (n - 1), factors)
         dcs = dataclasses.replace(cfg, switches="dcs")
         landmarks = _landmarks_of(solve_lm(graph, values, cfg.max_iterations), n)
         implied = _switch_values(None, landmarks, dcs)
@@ -166,7 +176,7 @@ def _solve_chain(world, cov, chunk, init, cfg: GraphConfig) -> tuple[np.ndarray,
         # GTSAM's cost per CustomFactor call grows with the size of the graph it sits in.
         windows = _candidate_windows(np.flatnonzero(implied < cfg.prepass_keep) + 1, n, cfg.prepass_window)
         if cfg.switch_solve == "closed":
-            return _solve_windows_closed(world, cov, chunk, landmarks, implied, windows, cfg)
+            return _solve_windows_closed(landmarks, implied, windows, cfg, chunk, factors)
         for lo, hi, own_lo, own_hi in _window_pieces(windows, cfg.prepass_max_window, cfg.prepass_window):
             rows = (chunk >= lo) & (chunk < hi)
             kinds = ["still" if implied[k - 1] >= cfg.prepass_keep else "switchable" for k in range(lo + 1, hi)]
@@ -183,12 +193,14 @@ def _solve_chain(world, cov, chunk, init, cfg: GraphConfig) -> tuple[np.ndarray,
     return landmarks, _switch_values(result, landmarks, cfg)
 
 
-def _solve_windows_closed(world, cov, chunk, landmarks, implied, windows, cfg: GraphConfig):
+def _solve_windows_closed(landmarks, implied, windows, cfg: GraphConfig, chunk, factors):
     """Every candidate window [lo, hi) of a chain solved in one Levenberg-Marquardt problem, the
     windows as disjoint components: landmarks keyed by their chunk in the whole chain, started from
     the DCS ``landmarks``; a boundary DCS found clearly still (``implied`` >= ``prepass_keep``) gets a
-    plain zero-motion factor, every other one the closed-form switchable factor. Landmarks outside
-    the windows keep their DCS values, their boundaries switch 1. -> (landmarks, switches)."""
+    plain zero-motion factor, every other one the closed-form switchable factor. ``factors``: the
+    detection factor of each row (``chunk`` its landmark), those of rows in a window go in.
+    Landmarks outside the windows keep their DCS values, their boundaries switch 1.
+    -> (landmarks, switches)."""
     n = len(landmarks)
     sw = np.ones(n - 1)
     if not windows:
@@ -204,9 +216,8 @@ def _solve_windows_closed(world, cov, chunk, landmarks, implied, windows, cfg: G
                 kind = "still" if implied[k - 1] >= cfg.prepass_keep else "switchable"
                 closed[k] = kind == "switchable"
                 add_break_factors(graph, values, k, cfg, kind)
-    rows = inside[chunk]
-    keys = np.array([L(k) for k in range(n)], np.uint64)
-    add_detection_factors(graph, keys[chunk[rows]], world[rows], cov[rows], cfg.noise)
+    for j in np.flatnonzero(inside[chunk]).tolist():
+        graph.add(factors[j])
     result = solve_lm(graph, values, cfg.max_iterations)
     idx = np.flatnonzero(inside)
     landmarks = landmarks.copy()

@@ -92,14 +92,22 @@ def detection_noise_model(cov: np.ndarray, kernel: str, width: float) -> gtsam.n
     return model
 
 
-def add_detection_factors(graph: gtsam.NonlinearFactorGraph, keys: np.ndarray, world: np.ndarray,
-                          covariances: np.ndarray, cfg: DetectionNoiseConfig) -> None:
-    """One robust ``PriorFactorPoint3`` per row: landmark ``keys[j]`` observed at ``world[j]``."""
+def detection_factors(keys: np.ndarray, world: np.ndarray, covariances: np.ndarray,
+                      cfg: DetectionNoiseConfig) -> list[gtsam.PriorFactorPoint3]:
+    """One robust ``PriorFactorPoint3`` per row: landmark ``keys[j]`` observed at ``world[j]``. GTSAM
+    factors are immutable: a list made once can fill several graphs over the same landmarks."""
     m_estimator(cfg.kernel, cfg.kernel_width)  # an unknown kernel is refused even without a row
     model, prior = detection_noise_model, gtsam.PriorFactorPoint3
     kernel, width = cfg.kernel, cfg.kernel_width
-    for key, p, cov in zip(keys.tolist(), np.asarray(world, float), np.asarray(covariances, float)):
-        graph.add(prior(key, p, model(cov, kernel, width)))
+    return [prior(key, p, model(cov, kernel, width))
+            for key, p, cov in zip(keys.tolist(), np.asarray(world, float), np.asarray(covariances, float))]
+
+
+def add_detection_factors(graph: gtsam.NonlinearFactorGraph, keys: np.ndarray, world: np.ndarray,
+                          covariances: np.ndarray, cfg: DetectionNoiseConfig) -> None:
+    """Add :func:`detection_factors` of the rows to ``graph``."""
+    for factor in detection_factors(keys, world, covariances, cfg):
+        graph.add(factor)
 
 
 def mahalanobis2(world: np.ndarray, centre: np.ndarray, covariances: np.ndarray) -> np.ndarray:

@@ -18,7 +18,7 @@ import numpy as np
 from egograph.core.types import PositionInterval
 from egograph.track.chain import L, solve_lm
 from egograph.track.config import GraphConfig
-from egograph.track.detection_factor import add_detection_factors, detection_covariances, lengths, mahalanobis2
+from egograph.track.detection_factor import detection_covariances, detection_factors, lengths, mahalanobis2
 
 NegativeFn = Callable[[int, np.ndarray, int, int], "int | None"]
 """``(instance, xyz, frame_from, frame_to) -> first frame index in [from, to) whose depth
@@ -34,7 +34,7 @@ class Segment:
 
     rows: np.ndarray            # indices into the instance's observation arrays
     xyz: np.ndarray             # robust centre, world, metres
-    covariance: np.ndarray      # 3x3 marginal covariance, m^2 (without the floor)
+    covariance: np.ndarray | None  # 3x3 marginal covariance, m^2 (without the floor); None when not asked for
     inliers: np.ndarray         # bool per row
     stationary: bool = False
     carried: bool = False        # not stationary, with detections at hand range: the object was moving
@@ -63,26 +63,55 @@ class InstanceSolution:
     chain_segments: list | None = None  # offline: every segment of the chain, made (before any is dropped)
     places: list | None = None        # offline: the instance's places (egograph.track.places.Place)
     runs: list | None = None          # offline: the place chain's runs (egograph.track.places.PlaceRun)
+    point_factors: list | None = None  # offline: every row's detection factor for robust points (segments.point_factors)
     answers: tuple | None = None      # offline: every frame's answer, (xyz (T, 3), raw confidence (T,), kind (T,)) (track.answers)
 
 
 # --------------------------------------------------------------------------- stands
 
 
-def robust_point(world: np.ndarray, cov: np.ndarray, cfg: GraphConfig,
-                  start: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
-    """One landmark from many detections: robust LM solve and its marginal covariance (m^2)."""
+def point_factors(world: np.ndarray, cov: np.ndarray, cfg: GraphConfig) -> list:
+    """The detection factor of every row on the one landmark of :func:`robust_point`. Made once for
+    an instance's detections, it serves each of its segments and places (a long recording pools
+    thousands of detections into a place, again at every merge)."""
+    return detection_factors(np.full(len(world), L(0)), world, cov, cfg.noise)
+
+
+def _point_graph(world: np.ndarray, cov: np.ndarray, cfg: GraphConfig, factors: list | None):
     graph = gtsam.NonlinearFactorGraph()
-    add_detection_factors(graph, np.full(len(world), L(0)), world, cov, cfg.noise)
+    for factor in point_factors(world, cov, cfg) if factors is None else factors:
+        graph.add(factor)
+    return graph
+
+
+def robust_point(world: np.ndarray, cov: np.ndarray, cfg: GraphConfig, start: np.ndarray | None = None,
+                 marginal: bool = True, factors: list | None = None) -> tuple[np.ndarray, np.ndarray | None]:
+    """One landmark from many detections: robust LM solve from ``start`` (default the median) and
+    its marginal covariance (m^2; None without ``marginal``, :func:`point_covariance` gives it
+    later). ``factors``: the rows' :func:`point_factors`, when made already."""
+    graph = _point_graph(world, cov, cfg, factors)
     values = gtsam.Values()
     values.insert(L(0), gtsam.Point3(*(np.median(world, axis=0) if start is None else start)))
     result = solve_lm(graph, values, cfg.max_iterations)
     xyz = np.asarray(result.atPoint3(L(0)), dtype=float)
+    return xyz, (_marginal(graph, result, world, cov) if marginal else None)
+
+
+def point_covariance(world: np.ndarray, cov: np.ndarray, xyz: np.ndarray, cfg: GraphConfig,
+                     factors: list | None = None) -> np.ndarray:
+    """The marginal covariance (m^2) that :func:`robust_point` of these rows reports at its
+    solution ``xyz``, the same bits."""
+    values = gtsam.Values()
+    values.insert(L(0), gtsam.Point3(*xyz))
+    return _marginal(_point_graph(world, cov, cfg, factors), values, world, cov)
+
+
+def _marginal(graph, values, world: np.ndarray, cov: np.ndarray) -> np.ndarray:
     try:
-        covariance = gtsam.Marginals(graph, result).marginalCovariance(L(0))
+        covariance = gtsam.Marginals(graph, values).marginalCovariance(L(0))
     except RuntimeError:  # every detection down-weighted to nothing: fall back to the sample spread
         covariance = np.cov(world.T) + 1e-6 * np.eye(3) if len(world) > 1 else cov[0]
-    return xyz, np.asarray(covariance)
+    return np.asarray(covariance)
 
 
 def with_floor(covariance: np.ndarray, cfg: GraphConfig) -> np.ndarray:
@@ -99,10 +128,13 @@ def fixed_interval_estimate(world: np.ndarray, camera: np.ndarray, cfg: GraphCon
 
 def make_segment(rows: np.ndarray, world: np.ndarray, cov: np.ndarray, cfg: GraphConfig,
                  start: np.ndarray | None = None, camera: np.ndarray | None = None,
-                 range_m: np.ndarray | None = None) -> Segment:
-    """Robust centre of the detections ``rows`` and whether they show a stand: enough inliers,
-    a large enough inlier share, and not moving along with the camera (``camera`` given)."""
-    xyz, c = robust_point(world[rows], cov[rows], cfg, start)
+                 range_m: np.ndarray | None = None, marginal: bool = True, factors: list | None = None) -> Segment:
+    """Robust centre of the detections ``rows`` (from ``start``, default their median) and whether
+    they show a stand: enough inliers, a large enough inlier share, and not moving along with the
+    camera (``camera`` given). Without ``marginal`` the segment's covariance is None. ``factors``:
+    :func:`point_factors` of every row of ``world``, when made already."""
+    xyz, c = robust_point(world[rows], cov[rows], cfg, start, marginal,
+                          None if factors is None else [factors[j] for j in rows.tolist()])
     inl = mahalanobis2(world[rows], xyz, cov[rows]) <= cfg.inlier_chi2
     seg = Segment(rows, xyz, c, inl)
     in_hand = camera is not None and range_m is not None and moves_with_camera(
