@@ -191,3 +191,29 @@ def test_device_set_is_generated_in_the_device_world_beside_the_legacy_one(tiny_
     assert meta["config"]["world"] == "device" and meta["device_revision"] == DEVICE_REVISION
     assert json.loads((roots[0] / "recording.json").read_text())["config"].get("world", "legacy") == "legacy"
     assert (roots[0] / "recording.json").stat().st_mtime_ns == before
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("rgb", [False, True])
+def test_a_set_built_in_parallel_is_the_same_bytes_as_one_built_in_turn(tmp_path, rgb):
+    """tools/benchset.py --jobs 2 builds the recordings in processes of their own, on one thread each:
+    the same files, byte for byte, in the seeds' order, as building them one after another."""
+    import sys
+    from pathlib import Path
+
+    sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "tools"))
+    from benchset import build
+
+    def digests(root):
+        return {str(p.relative_to(root)): hashlib.sha256(p.read_bytes()).hexdigest()
+                for p in sorted(root.rglob("*")) if p.is_file()}
+
+    import os
+
+    before = {k: os.environ.get(k) for k in ("OMP_NUM_THREADS", "LP_NUM_THREADS")}
+    one = build([3, 4], 8, config=TINY, cache=tmp_path / "one", rgb=rgb, jobs=1)
+    two = build([3, 4], 8, config=TINY, cache=tmp_path / "two", rgb=rgb, jobs=2)
+    assert {k: os.environ.get(k) for k in before} == before        # the children's settings stay theirs
+    assert [r.name for r in two] == ["seed3", "seed4"]
+    for a, b in zip(one, two):
+        assert digests(a) == digests(b) and len(digests(a)) > 5

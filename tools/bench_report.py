@@ -793,7 +793,9 @@ def render(docs: dict[str, dict], sections: tuple[Section, ...] = SECTIONS, rege
            "prints its tables and writes them, with its command line, revision, machine and wall time, to "
            "`docs/bench/<tool>[-<tag>].json` (`--json PATH` elsewhere, `--json -` not at all); "
            "`.venv/bin/python tools/bench_report.py` renders this page from those files and `--check` "
-           "says whether it is current. The synthetic recordings are generated into `.cache/` on first use.", "",
+           "says whether it is current. The synthetic recordings are generated into `.cache/` on first use, one "
+           "after another; `tools/benchset.py --seeds ... --frames N [--rgb] --jobs 2` builds a set two at a time "
+           "first.", "",
            "`.venv/bin/python tools/bench_report.py --regenerate [--tier quick|full] [--only SECTION ...] "
            "[--scheduler ADDR | --workers N]` runs every section's benchmark, cheap sections first, and re-renders "
            "this page after each: the quick tier on fewer or shorter recordings of the same held-out seeds (its "
