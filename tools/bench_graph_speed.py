@@ -9,7 +9,9 @@ detection statistics are those of the benchmark. Timed: `graph_tracker` offline 
 graph building, Levenberg-Marquardt per instance, segments, interval re-solves with
 marginals), without negative evidence (which reads depth frames and is timed by the
 tracker benchmark); both motion-break factors (switchable CustomFactor, DCS); the `kf`
-baseline on the same observations as a same-run reference.
+baseline on the same observations as a same-run reference. Also counted: how many times the
+noise-scale fit solved the recording, and the share of the solve inside GTSAM's Levenberg-Marquardt
+(one more run under cProfile).
 """
 
 from __future__ import annotations
@@ -63,6 +65,19 @@ def long_stream(n_frames: int, det_set: str, cache: Path, seeds: Sequence[int] =
     return Observations.concatenate(parts), T0 + FRAME * np.arange(n_frames, dtype=np.int64)
 
 
+def solver_share(fn) -> float:
+    """Share of ``fn()``'s time spent in GTSAM's ``LevenbergMarquardtOptimizer.optimize`` (one run
+    under cProfile)."""
+    import cProfile
+    import pstats
+
+    prof = cProfile.Profile()
+    prof.runcall(fn)
+    stats = pstats.Stats(prof)
+    lm = sum(row[2] for (_, _, name), row in stats.stats.items() if "gtsam" in name and "optimize" in name)
+    return lm / stats.total_tt if stats.total_tt > 0 else float("nan")
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--frames", type=int, nargs="+", default=[1000, 10000, 50000])
@@ -90,21 +105,25 @@ def main() -> None:
                 best, best_cpu = min(best, time.perf_counter() - t0), min(best_cpu, time.process_time() - c0)
             times[name], cpu[name] = best, best_cpu
             if name == "switchable":
-                n_iv = len(out.intervals)
+                n_iv, n_rounds = len(out.intervals), len(out.metadata["noise_scale_rounds"])
+                lm_share = solver_share(fn)
         rows.append((n, times["switchable"]))
         table.append([n, len(np.unique(obs.instance)), len(obs), times["switchable"], times["dcs"], times["kf"],
                       1000 * times["switchable"] / n, times["switchable"] / times["kf"], cpu["switchable"], cpu["kf"],
-                      cpu["switchable"] / cpu["kf"], n_iv])
+                      cpu["switchable"] / cpu["kf"], n_iv, n_rounds, 100 * lm_share])
         print(f"{n} frames: switchable {times['switchable']:.2f} s", file=sys.stderr, flush=True)
     benchdoc.table("Offline graph solve time against recording length",
                    ["frames", "instances", "observations", "graph switchable (s)", "graph dcs (s)", "kf (s)",
                     "switchable s per 1k frames", "switchable / kf", "switchable CPU s", "kf CPU s",
-                    "switchable / kf CPU", "intervals"], table,
-                   ["d", "d", "d", ".2f", ".2f", ".2f", ".3f", ".2f", ".2f", ".2f", ".2f", "d"],
+                    "switchable / kf CPU", "intervals", "noise-scale solves", "in LM (%)"], table,
+                   ["d", "d", "d", ".2f", ".2f", ".2f", ".3f", ".2f", ".2f", ".2f", ".2f", "d", "d", ".0f"],
                    note=f"{args.det_set.upper()} observations of the cached benchmark recordings laid end to end; "
                         f"best of {args.repeat} runs per size; without negative evidence. Wall and CPU (process) "
                         "seconds: on a shared machine the CPU time is what the solve cost, the wall time that "
-                        "stretched by the other work.")
+                        "stretched by the other work. Noise-scale solves: how many times the fit solved the "
+                        "recording (the start scale, then each refit until it settled). In LM: the share of the "
+                        "switchable solve's time inside GTSAM's Levenberg-Marquardt, from one more run under "
+                        "cProfile (which slows the Python around it, so the share is a lower bound).")
     if len(rows) >= 2:
         (n0, t0), (n1, t1) = rows[0], rows[-1]
         c0, c1 = table[0][8], table[-1][8]
