@@ -26,11 +26,12 @@ pytestmark = pytest.mark.skipif(not _system_libraries_present(), reason="env.sh 
 
 
 def _checkout(tmp_path: Path, python: str) -> Path:
-    """A checkout with tools/env.sh, setup.cfg, pyproject.toml and a .venv whose python is ``python``
+    """A checkout with tools/env.sh, tools/constraints.txt, setup.cfg, pyproject.toml and a .venv whose python is ``python``
     (a shell script)."""
     repo = tmp_path / "repo"
     (repo / "tools").mkdir(parents=True)
-    shutil.copy(REPO / "tools" / "env.sh", repo / "tools" / "env.sh")
+    for f in ("env.sh", "constraints.txt"):
+        shutil.copy(REPO / "tools" / f, repo / "tools" / f)
     for f in ("setup.cfg", "pyproject.toml"):
         shutil.copy(REPO / f, repo / f)
     py = repo / ".venv" / "bin" / "python"
@@ -63,7 +64,7 @@ def test_each_step_prints_one_line_and_its_output_goes_to_the_log(tmp_path):
     repo = _checkout(tmp_path, 'case "$*" in\n'
                                '  *"import egograph"*) [ -f "$(dirname "$0")/../installed" ] ;;\n'
                                '  *"pip show"*) exit 1 ;;\n'
-                               '  *"pip install -e"*) echo "Collecting gtsam ... Successfully installed 61 packages"; '
+                               '  *"pip install -c"*" -e "*) echo "Collecting gtsam ... Successfully installed 61 packages"; '
                                'touch "$(dirname "$0")/../installed" ;;\n'
                                '  *) echo "Requirement already satisfied: pip" ;;\n'
                                'esac\n')
@@ -76,6 +77,7 @@ def test_each_step_prints_one_line_and_its_output_goes_to_the_log(tmp_path):
     assert f"PATH={venv}/bin:" in p.stdout
     log = (venv / "setup.log").read_text()
     assert "Successfully installed 61 packages" in log and "Requirement already satisfied" in log
+    assert f"pip install -c {repo}/tools/constraints.txt -e" in log   # at the pinned versions
     # the second time nothing is installed: one line
     p = _source(repo)
     assert p.returncode == 0 and p.stderr.splitlines() == [f"set-up: {venv} is up to date"]

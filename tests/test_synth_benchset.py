@@ -14,9 +14,11 @@ from egograph.io.poses import read_pose_json, write_pose_json
 from egograph.io.recording import Recording
 from egograph.poses.refine import apply_poses
 from egograph.steps.settings import EgographConfig
+from egograph.synth import benchset
 from egograph.synth.benchset import (
     ANNOTATED_BOXES,
     BENCH_WORLDS,
+    CODE_FILE,
     ORACLE,
     add_world_argument,
     benchmark_set,
@@ -39,10 +41,12 @@ def tiny_set(tmp_path_factory):
     return cache, benchmark_set([1, 2], FRAMES, config=TINY, cache=cache, progress=False)
 
 
-def legacy_key(root, cfg) -> str:
-    """The key the benchmarks wrote before the cache moved into the package (reported poses)."""
+def expected_key(root, cfg) -> str:
+    """The key of a detection set lifted with the reported poses: front-end config and revision, lift
+    knobs, io config and the lifting code's digest (nothing of the poses)."""
     meta = json.loads((root / "recording.json").read_text())
-    parts = [meta["config"]["detections"], meta.get("frontend_revision", 1), cfg.lift.result_knobs(), to_dict(cfg.io)]
+    parts = [meta["config"]["detections"], meta.get("frontend_revision", 1), cfg.lift.result_knobs(), to_dict(cfg.io),
+             benchset.lift_code()]
     return hashlib.sha256(json.dumps(parts, sort_keys=True).encode()).hexdigest()[:12]
 
 
@@ -67,13 +71,51 @@ def test_the_set_is_cached(tiny_set, capsys):
     assert [(r / "recording.json").stat().st_mtime_ns for r in roots] == before
 
 
-def test_key_with_reported_poses_is_the_earlier_one(tiny_set):
+def test_key_with_reported_poses_holds_no_poses_but_the_code(tiny_set):
     _, roots = tiny_set
     cfg = EgographConfig()
     for root in roots:
         rec = Recording.open(root)
-        assert observations_key(rec, "svoe", cfg) == legacy_key(root, cfg)
-        assert observations_path(rec, "svoe", cfg).name == f"svoe_robust_{legacy_key(root, cfg)}.npz"
+        assert observations_key(rec, "svoe", cfg) == expected_key(root, cfg)
+        assert observations_path(rec, "svoe", cfg).name == f"svoe_robust_{expected_key(root, cfg)}.npz"
+
+
+@pytest.mark.parametrize("source", ["svoe", ORACLE, ANNOTATED_BOXES])
+def test_key_changes_with_the_lifting_code_or_a_package_version(tiny_set, monkeypatch, source):
+    # observations lifted by other code, or with another numpy, are not served as current
+    rec, cfg = Recording.open(tiny_set[1][0]), EgographConfig()
+    now = benchset.lift_code()
+    before = observations_key(rec, source, cfg)
+    monkeypatch.setattr(benchset, "lift_code", lambda: {**now, "modules": "0" * 16})
+    assert observations_key(rec, source, cfg) != before
+    monkeypatch.setattr(benchset, "lift_code", lambda: {**now, "packages": {**now["packages"], "numpy": "0.0"}})
+    assert observations_key(rec, source, cfg) != before
+
+
+def test_a_recording_made_by_other_code_is_made_again(tmp_path, capsys):
+    roots = benchmark_set([3], FRAMES, config=TINY, cache=tmp_path, progress=False)
+    code_file = roots[0] / CODE_FILE
+    made = json.loads(code_file.read_text())
+    assert made == benchset.generator_code()
+    capsys.readouterr()
+    # the generator's code changed: generated again, and the message says why
+    code_file.write_text(json.dumps({**made, "recording": {**made["recording"], "modules": "0" * 16}}))
+    benchmark_set([3], FRAMES, config=TINY, cache=tmp_path, progress=False)
+    assert "generating benchmark recording seed 3" in (out := capsys.readouterr().out)
+    assert "egograph code changed" in out
+    assert json.loads(code_file.read_text()) == made
+    # only the front-ends' code changed: detections re-simulated, the rest kept
+    depth = sorted(roots[0].rglob("*.png"))[0]
+    mtime = depth.stat().st_mtime_ns
+    code_file.write_text(json.dumps({**made, "detections": {**made["detections"], "modules": "0" * 16}}))
+    benchmark_set([3], FRAMES, config=TINY, cache=tmp_path, progress=False)
+    out = capsys.readouterr().out
+    assert "re-simulating detections of seed 3" in out and "generating" not in out
+    assert depth.stat().st_mtime_ns == mtime and json.loads(code_file.read_text()) == made
+    # a recording cached before code digests were kept is made again
+    code_file.unlink()
+    benchmark_set([3], FRAMES, config=TINY, cache=tmp_path, progress=False)
+    assert "made before code digests were recorded" in capsys.readouterr().out
 
 
 @pytest.mark.parametrize("source", ["svoe", ORACLE, ANNOTATED_BOXES])

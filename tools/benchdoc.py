@@ -27,7 +27,8 @@ same characters.
 The JSON file (``FORMAT``): ``tool``, ``command`` (as typed, from the repository root),
 ``argv``, ``arguments`` (every parsed argument: seeds, frames, ...), ``environment`` (the
 variables that change speed, e.g. ``LP_NUM_THREADS``), ``egograph`` (version, git ``commit``,
-``dirty``: tracked files differ from the commit), ``machine`` (``nproc``, ``cpu_affinity``,
+``dirty``: tracked files differ from the commit), ``packages`` (the installed versions of egograph's
+dependencies and of Python: records made with other versions say so), ``machine`` (``nproc``, ``cpu_affinity``,
 ``cpu``, ``memory_gb``, ``load_average`` at the start and the end), ``started`` (UTC),
 ``wall_s``, ``items`` (tables and sentences in the order printed) and ``data`` (extra raw
 records a tool keeps, not rendered).
@@ -267,6 +268,7 @@ class Bench:
         self.machine = machine()
         self.revision = revision()
         self.environment = {k: os.environ[k] for k in ENV_KEYS if k in os.environ}
+        self.packages = packages()
         self._t0 = time.perf_counter()
 
     def table(self, *a, **kw) -> dict:
@@ -290,6 +292,7 @@ class Bench:
             "arguments": self.arguments,
             "environment": self.environment,
             "egograph": self.revision,
+            "packages": self.packages,
             "machine": m,
             "started": self.started,
             "wall_s": round(time.perf_counter() - self._t0, 1),
@@ -306,6 +309,28 @@ class Bench:
         self.path.parent.mkdir(parents=True, exist_ok=True)
         atomic_write_text(self.path, dumps(self.document()) + "\n")
         return self.path
+
+
+def packages() -> dict[str, str]:
+    """``{distribution: version}`` of everything egograph requires (its extras included) as
+    installed, and ``python``: what a figure was measured with (stop 51: a rebuilt environment with
+    unpinned dependencies moved baselines by up to 0.7 points, and the records could not say why)."""
+    import platform
+    import re
+    from importlib import metadata
+
+    out = {"python": platform.python_version()}
+    try:
+        requires = metadata.requires("egograph") or []
+    except metadata.PackageNotFoundError:
+        requires = []
+    for req in requires:
+        name = re.split(r"[ ;<>=!~\[(]", req, maxsplit=1)[0]
+        try:
+            out[name] = metadata.version(name)
+        except metadata.PackageNotFoundError:  # another platform's alternative, or an extra not installed
+            continue
+    return dict(sorted(out.items()))
 
 
 def start(file: str | Path, args: argparse.Namespace | dict | None = None, argv: Sequence[str] | None = None) -> Bench:

@@ -1,8 +1,10 @@
 #!/usr/bin/env bash
 # Create or reuse .venv and install egograph (editable) with its test runner and optional extras
 # (sourced by demo.sh/test.sh).
-# Re-installs only when setup.cfg changes. Installs the system libraries (libusb-1.0-0 for Open3D,
-# libegl1 and libgl1-mesa-dri for the generator's OpenGL renderer) when missing.
+# Re-installs only when setup.cfg, pyproject.toml or tools/constraints.txt change; installs under
+# tools/constraints.txt (the pinned versions the tests and benchmark records are made with).
+# Installs the system libraries (libusb-1.0-0 for Open3D, libegl1 and libgl1-mesa-dri for the
+# generator's OpenGL renderer) when missing.
 # Prints one line per set-up step it runs (to stderr); what apt-get and pip print goes to
 # .venv/setup.log (to a temporary file until .venv exists), whose path is printed when a step fails
 # (exit 1).
@@ -58,7 +60,7 @@ if [ ! -x "$VENV/bin/python" ]; then
   fi
 fi
 STAMP="$VENV/.egograph-installed"
-WANT="$(sha256sum "$REPO/setup.cfg" "$REPO/pyproject.toml" | sha256sum | cut -d' ' -f1)"
+WANT="$(sha256sum "$REPO/setup.cfg" "$REPO/pyproject.toml" "$REPO/tools/constraints.txt" | sha256sum | cut -d' ' -f1)"
 if [ ! -f "$STAMP" ] || [ "$(cat "$STAMP")" != "$WANT" ] || ! "$VENV/bin/python" -c 'import egograph' 2>/dev/null; then
   step "upgrading pip" "$VENV/bin/python" -m pip install --upgrade pip
   # setup.cfg asks for open3d-cpu on Linux x86_64; open3d and open3d-cpu install the same files, so a
@@ -73,9 +75,10 @@ if [ ! -f "$STAMP" ] || [ "$(cat "$STAMP")" != "$WANT" ] || ! "$VENV/bin/python"
       "$VENV/bin/python" -m pip uninstall -y opencv-python-headless
   fi
   # Editable (the checkout's files are the ones run), with the test runner and the optional
-  # COLMAP (refine.colmap), KISS-ICP (refine.icp) and rerun (export --rrd) extras.
+  # COLMAP (refine.colmap), KISS-ICP (refine.icp) and rerun (export --rrd) extras, at the pinned
+  # versions (a .venv made before the pins is brought to them: pip -c up- or downgrades).
   step "installing egograph and its dependencies into $VENV (pip; a few minutes the first time)" \
-    "$VENV/bin/python" -m pip install -e "$REPO[test,colmap,icp,viewer]"
+    "$VENV/bin/python" -m pip install -c "$REPO/tools/constraints.txt" -e "$REPO[test,colmap,icp,viewer]"
   echo "$WANT" > "$STAMP"
 else
   echo "set-up: $VENV is up to date" >&2

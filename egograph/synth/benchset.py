@@ -22,6 +22,7 @@ import numpy as np
 
 from egograph.core.config import load_config, to_dict
 from egograph.core.errors import InputError
+from egograph.core.provenance import code_digest, describe_change
 from egograph.core.resources import synth_config
 from egograph.geometry.observations import Observations
 from egograph.io.recording import Recording
@@ -83,27 +84,64 @@ def set_dir(cache: str | Path, frames: int, overrides: Sequence[str] = (), world
     return Path(cache) / ("device" if world == "device" else "") / f"f{frames}{'_' + tag if tag else ''}"
 
 
+CODE_FILE = "code.json"
+"""Beside a cached recording: the :func:`egograph.core.provenance.code_digest` of the code that made
+it (``recording``: the generator without the detection front-ends; ``detections``: the front-ends),
+checked on every reuse, so that a change of code or of a package version the generator imports
+rebuilds the recording instead of serving figures made by other code."""
+
+
+@functools.lru_cache(maxsize=1)
+def generator_code() -> dict:
+    """``{"recording": ..., "detections": ...}``: the code digests a cached recording is checked against
+    (computed once per process: the code a process runs does not change under it)."""
+    return {"recording": code_digest("egograph.synth.generate", exclude=("egograph.synth.frontend",)),
+            "detections": code_digest("egograph.synth.frontend")}
+
+
+def _read_code(root: Path) -> dict:
+    path = root / CODE_FILE
+    try:
+        return json.loads(path.read_text()) if path.exists() else {}
+    except (OSError, ValueError):
+        return {}
+
+
+def _write_code(root: Path, code: dict) -> None:
+    from egograph.io.atomic import atomic_write_text
+
+    atomic_write_text(root / CODE_FILE, json.dumps(code, indent=1, sort_keys=True) + "\n")
+
+
 def benchmark_set(seeds: Sequence[int], frames: int, *, config: str | Path, cache: str | Path,
                   overrides: Sequence[str] = (), progress: bool = True) -> list[Path]:
     """Roots of the cached benchmark recordings, one per seed: generated from the synth ``config``
     (plus ``frames``, no PV RGB and ``overrides``) when missing or when the scene config or the
-    generator revision changed; detections re-simulated when only the front-ends changed."""
+    generator revision changed, or the code that made it (:data:`CODE_FILE`); detections
+    re-simulated when only the front-ends (their config, revision or code) changed."""
     cfg = load_config(SynthConfig, config, [f"frames={frames}", "pv.rgb=false", *overrides])
     want = to_dict(cfg)
+    code = generator_code()
     roots = []
     for seed in seeds:
         root = set_dir(cache, frames, overrides, cfg.world) / f"seed{seed}"
         meta_path = root / "recording.json"
         meta = json.loads(meta_path.read_text()) if meta_path.exists() else None
         have = meta["config"] if meta else None
+        made = _read_code(root)
         if meta is None or meta.get("seed") != seed or meta.get("revision") != GENERATOR_REVISION \
                 or meta.get("device_revision") != (DEVICE_REVISION if cfg.world == "device" else None) \
-                or rendered_config(have) != rendered_config(want):
-            print(f"generating benchmark recording seed {seed} ({frames} frames) -> {root}", flush=True)
+                or rendered_config(have) != rendered_config(want) or made.get("recording") != code["recording"]:
+            why = "" if meta is None or made.get("recording") == code["recording"] else \
+                f" (generator: {describe_change(made.get('recording'), code['recording'])})"
+            print(f"generating benchmark recording seed {seed} ({frames} frames) -> {root}{why}", flush=True)
             generate(root, cfg, seed=seed, progress=progress)
-        elif have.get("detections") != want["detections"] or meta.get("frontend_revision", 1) != FRONTEND_REVISION:
-            print(f"re-simulating detections of seed {seed} (front-end config or revision changed)", flush=True)
+            _write_code(root, code)
+        elif have.get("detections") != want["detections"] or meta.get("frontend_revision", 1) != FRONTEND_REVISION \
+                or made.get("detections") != code["detections"]:
+            print(f"re-simulating detections of seed {seed} (front-end config, revision or code changed)", flush=True)
             redetect(root, cfg)
+            _write_code(root, code)
         roots.append(root)
     return roots
 
@@ -114,6 +152,7 @@ def rgb_benchmark_set(seeds: Sequence[int], frames: int, *, config: str | Path, 
     Refinement never reads the simulated detections: a front-end change does not re-render; a
     change of the PV renderer or its revision does."""
     cfg = load_config(SynthConfig, config, [f"frames={frames}", *overrides])
+    code = generator_code()
     out = []
     for seed in seeds:
         root = set_dir(cache, frames, overrides, cfg.world) / f"seed{seed}"
@@ -121,10 +160,12 @@ def rgb_benchmark_set(seeds: Sequence[int], frames: int, *, config: str | Path, 
         have = json.loads(meta.read_text()) if meta.exists() else {}
         ok = have.get("revision") == GENERATOR_REVISION and have.get("pv_revision") == PV_REVISION \
             and have.get("device_revision") == (DEVICE_REVISION if cfg.world == "device" else None) \
-            and have["config"] == {**recorded_config(cfg), "detections": have["config"].get("detections")}
+            and have["config"] == {**recorded_config(cfg), "detections": have["config"].get("detections")} \
+            and _read_code(root).get("recording") == code["recording"]
         if not ok:
             print(f"generating RGB benchmark recording seed {seed} ({frames} frames) -> {root}", flush=True)
             generate(root, cfg, seed=seed, progress=True)
+            _write_code(root, code)
         out.append(root)
     return out
 
@@ -199,6 +240,13 @@ def _reported_digest(seq_dir: Path, calibration_dir: Path, invalid_poses: str, f
     return poses_digest(reported)
 
 
+@functools.lru_cache(maxsize=1)
+def lift_code() -> dict:
+    """The code digest (:func:`egograph.core.provenance.code_digest`) of lifting and of reading the
+    detection sources, part of every observations key (computed once per process)."""
+    return code_digest("egograph.geometry.lift", "egograph.synth.oracle", "egograph.track.regt")
+
+
 def observations_key(rec: Recording, source: str, cfg) -> str:
     """Cache key (12 hex) of the observations of ``source`` lifted from ``rec`` with ``cfg``.
 
@@ -216,6 +264,9 @@ def observations_key(rec: Recording, source: str, cfg) -> str:
     parts += [cfg.lift.result_knobs(), to_dict(cfg.io)]
     if not uses_reported_poses(rec, cfg):
         parts.append(poses_digest(rec))
+    # the code that lifts and the packages it imports (stop 52: the keys before carried no code, so
+    # observations lifted by other code or another numpy/OpenCV/Open3D were served as current)
+    parts.append(lift_code())
     blob = json.dumps(parts, sort_keys=True)
     return hashlib.sha256(blob.encode()).hexdigest()[:12]
 
