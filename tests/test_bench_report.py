@@ -306,3 +306,18 @@ def test_a_killed_regeneration_resumes_without_running_finished_sections_again(t
     assert calls.read_text().split() == ["bench_aa", "bench_bb", "bench_bb"]
     assert bench_report.regenerate("full", ["bench_bb"], 1, None, bench_dir, out, sections=sections("quick")) == 0
     assert calls.read_text().split()[-1] == "bench_bb" and bench_report.load(bench_dir)["bench_bb"]["argv"] == ["full"]
+
+
+def test_longest_first_orders_by_the_last_measured_wall_time(tmp_path):
+    regen = tmp_path / bench_report.REGEN_DIR_NAME
+    regen.mkdir()
+    log = {"format": bench_report.REGEN_FORMAT, "tier": "full", "complete": False, "invocations": [
+        {"sections": {"a": {"status": "ok", "wall_s": 10.0}, "b": {"status": "ok", "wall_s": 900.0}}},
+        {"sections": {"a": {"status": "ok", "wall_s": 1200.0}, "b": {"status": "failed", "wall_s": 1.0}}}]}
+    (regen / "full.json").write_text(json.dumps(log))
+    measured = bench_report.last_wall_s(tmp_path, "full")
+    assert measured == {"a": 1200.0, "b": 900.0}   # the last successful run of each; a failed one does not count
+    mk = lambda stem, quick_min: bench_report.Section(stem, stem, "", f"tools/{stem}.py", quick_min=quick_min)
+    todo = [mk("c", 5.0), mk("b", 1.0), mk("a", 1.0), mk("d", 30.0)]
+    # unmeasured sections by their quick-tier estimate (d: 30 min), measured ones by their wall time
+    assert [s.stem for s in bench_report.longest_first(todo, measured)] == ["d", "a", "b", "c"]

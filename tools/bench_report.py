@@ -565,19 +565,43 @@ def load_regenerations(bench_dir: Path) -> dict[str, dict]:
     return out
 
 
+def last_wall_s(bench_dir: Path, tier: str) -> dict[str, float]:
+    """Each section's wall time in its last successful run of ``tier`` (the regeneration log), s."""
+    regen = load_regenerations(bench_dir).get(tier, {})
+    out: dict[str, float] = {}
+    for inv in regen.get("invocations", []):
+        for stem, run in inv.get("sections", {}).items():
+            if run.get("status") == "ok" and run.get("wall_s") is not None:
+                out[stem] = float(run["wall_s"])
+    return out
+
+
+def longest_first(todo: list[Section], measured: dict[str, float]) -> list[Section]:
+    """``todo`` with the longest sections first (their last measured wall time, else ``quick_min``
+    minutes): with several slots the longest job no longer starts last and sets the end. A section
+    still starts only after those it reads (the scheduler waits for them)."""
+    return sorted(todo, key=lambda s: -measured.get(s.stem, s.quick_min * 60.0))
+
+
 def regenerate(tier: str, only: list[str] | None, workers: int, scheduler: str | None, bench_dir: Path,
-               out: Path, force: bool = False, sections: tuple[Section, ...] = SECTIONS) -> int:
+               out: Path, force: bool = False, sections: tuple[Section, ...] = SECTIONS,
+               longest: bool = False) -> int:
     """Run every chosen section's benchmark for ``tier`` (cheap first; sections whose record is current
     for the tier and the code are skipped, so a killed regeneration resumes), stamp each record with
     its tier and module digest, log the run in ``docs/bench/regeneration/<tier>.json`` and re-render the
     page after each section. With ``scheduler`` every section runs as a task on that Dask cluster (the
     repository at the same path on every worker), as many at once as it has worker threads; else
-    ``workers`` at once on this machine. Exit 0 when every chosen section has a current record."""
+    ``workers`` at once on this machine. ``longest``: the longest sections first (:func:`longest_first`).
+    Exit 0 when every chosen section has a current record."""
     from egograph.io.atomic import atomic_write_text
 
     chosen = select(only, sections)
     docs = load(bench_dir)
     todo = [s for s in chosen if force or not is_current(s, docs.get(s.stem), tier)]
+    if longest:   # a time measured with another command (other sizes) says nothing of this one
+        measured = {s.stem: t for s in todo if (t := last_wall_s(bench_dir, tier).get(s.stem)) is not None
+                    and docs.get(s.stem, {}).get("regeneration", {}).get("section_command") == s.command_for(tier)}
+        todo = longest_first(todo, measured)
     for s in chosen:
         if s not in todo:
             print(f"[{s.stem}] current for the {tier} tier and the code: kept", flush=True)
@@ -1002,11 +1026,16 @@ def main(argv: list[str] | None = None) -> int:
     where.add_argument("--scheduler", metavar="ADDR", help="run each section as a task on the Dask cluster at ADDR "
                                                            "(the repository at the same path on every worker)")
     g.add_argument("--force", action="store_true", help="run the chosen sections even when their record is current")
+    g.add_argument("--longest-first", action="store_true",
+                   help="start the longest sections first (their last measured wall time in this tier): with "
+                        "several workers the run ends sooner; without it cheap sections go first, so that a "
+                        "killed run has finished the most")
     args = ap.parse_args(argv)
     if args.regenerate:
         if args.check or args.commands:
             ap.error("--regenerate writes records: not with --check or --commands")
-        return regenerate(args.tier, args.only, args.workers, args.scheduler, args.bench_dir, args.out, args.force)
+        return regenerate(args.tier, args.only, args.workers, args.scheduler, args.bench_dir, args.out, args.force,
+                          longest=args.longest_first)
     docs = load(args.bench_dir)
     if args.commands:
         sys.stdout.write(commands(docs, args.missing, args.tier if "--tier" in (argv or sys.argv) else "full"))
