@@ -321,3 +321,20 @@ def test_longest_first_orders_by_the_last_measured_wall_time(tmp_path):
     todo = [mk("c", 5.0), mk("b", 1.0), mk("a", 1.0), mk("d", 30.0)]
     # unmeasured sections by their quick-tier estimate (d: 30 min), measured ones by their wall time
     assert [s.stem for s in bench_report.longest_first(todo, measured)] == ["d", "a", "b", "c"]
+
+
+def test_a_record_says_whether_it_was_made_with_the_pinned_versions(tmp_path):
+    pins_file = tmp_path / "constraints.txt"
+    pins_file.write_text("# header\nnumpy==2.4.6\nPyYAML==6.0.4  # a comment\nopencv_contrib_python_headless==5.1\n")
+    pins = bench_report.pinned_versions(pins_file)
+    assert pins == {"numpy": "2.4.6", "pyyaml": "6.0.4", "opencv-contrib-python-headless": "5.1"}
+    same = {"packages": {"python": "3.11.7", "numpy": "2.4.6", "pyyaml": "6.0.4", "gtsam": "4.3.0"}}
+    assert bench_report.packages_line(same, pins) == \
+        "- packages: Python 3.11.7, as pinned in `tools/constraints.txt`"
+    other = {"packages": {**same["packages"], "numpy": "2.3.0", "opencv-contrib-python-headless": "5.1"}}
+    assert bench_report.packages_line(other, pins) == ("- packages: Python 3.11.7, other versions than "
+                                                       "`tools/constraints.txt` pins: numpy 2.3.0 (pinned 2.4.6)")
+    assert "not recorded" in bench_report.packages_line({}, pins)
+    # every pinned distribution egograph requires is pinned in the committed file
+    committed = bench_report.pinned_versions()
+    assert {"numpy", "gtsam", "opencv-contrib-python-headless", "scipy", "onnxruntime"} <= set(committed)

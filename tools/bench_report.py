@@ -741,8 +741,39 @@ def typed_command(doc: dict) -> str:
     return " ".join([*prefix, PY, doc["command"]])
 
 
-def provenance(doc: dict) -> list[str]:
-    """Where a record came from: command, revision, machine, date, wall time."""
+CONSTRAINTS = REPO / "tools" / "constraints.txt"
+
+
+def _canonical(name: str) -> str:
+    return name.lower().replace("_", "-").replace(".", "-")
+
+
+def pinned_versions(path: Path = CONSTRAINTS) -> dict[str, str]:
+    """``{distribution (canonical name): version}`` pinned in tools/constraints.txt (``name==version`` lines)."""
+    out = {}
+    if path.is_file():
+        for line in path.read_text().splitlines():
+            name, sep, version = line.split("#", 1)[0].strip().partition("==")
+            if sep:
+                out[_canonical(name)] = version.strip()
+    return out
+
+
+def packages_line(doc: dict, pins: dict[str, str]) -> str:
+    """Whether a record was made with the pinned package versions, and which differ."""
+    have = doc.get("packages")
+    if not have:
+        return "- packages: not recorded (a record made before records kept their package versions)"
+    python = have.get("python")
+    diff = [f"{name} {v} (pinned {pins[_canonical(name)]})" for name, v in sorted(have.items())
+            if name != "python" and _canonical(name) in pins and pins[_canonical(name)] != v]
+    where = "as pinned in `tools/constraints.txt`" if not diff else \
+        "other versions than `tools/constraints.txt` pins: " + ", ".join(diff)
+    return f"- packages: Python {python}, {where}"
+
+
+def provenance(doc: dict, pins: dict[str, str] | None = None) -> list[str]:
+    """Where a record came from: command, revision, package versions, machine, date, wall time."""
     rev, m = doc.get("egograph", {}), doc.get("machine", {})
     commit = rev.get("commit")
     revision = f"egograph {rev.get('version')}, commit `{commit[:10]}`" if commit else \
@@ -758,6 +789,7 @@ def provenance(doc: dict) -> list[str]:
               f"at the start, {end} at the end"
     return [f"- command: `{typed_command(doc)}`",
             f"- revision: {revision}",
+            packages_line(doc, pinned_versions() if pins is None else pins),
             f"- machine: {machine}",
             f"- run: {doc.get('started')}, wall time {_duration(doc.get('wall_s'))}"]
 
