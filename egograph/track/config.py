@@ -200,16 +200,16 @@ class AnswersConfig(Checked):
     min_confidence: float = knob(0.35, "the operating point of the offline graph and of smooth: the per-frame files "
                                        "hold the answers of at least this confidence (answers.tsv holds every "
                                        "answer, for the precision-recall curves). On the tuning recordings (seeds "
-                                       "4-8, 11, 12, 900 frames, SVOE and MVPE pooled) the offline graph's P and R "
-                                       "reach every baseline's at every threshold from 0 to 0.6, smooth's from 0.3 "
-                                       "to 0.55: 0.35 is in both (tools/bench_confidence.py --fit); egograph "
-                                       "track/smooth --min-confidence sets it and causal_min_confidence",
-                                 min=0.0, max=1.0)
-    causal_min_confidence: float = knob(0.01, "the operating point of graph-causal (every lag), as min_confidence: "
+                                       "4-8, 11, 12 at 900 and 3000 frames, SVOE and MVPE pooled) the offline "
+                                       "graph's P and R reach every baseline's at every threshold from 0 to 0.65, "
+                                       "smooth's from 0.05 to 0.6: 0.35 is near the centre of both "
+                                       "(tools/bench_confidence.py --fit); egograph track/smooth --min-confidence "
+                                       "sets it and causal_min_confidence", min=0.0, max=1.0)
+    causal_min_confidence: float = knob(0.05, "the operating point of graph-causal (every lag), as min_confidence: "
                                               "on the tuning recordings its P and R reach every baseline's from 0 "
-                                              "to 0.02 only (SVOE recall at 1-1.5 m binds: above 0.02 the carried "
-                                              "and put-down answers of a noisy front-end drop out); 0.01 is the "
-                                              "centre", min=0.0, max=1.0)
+                                              "to 0.1 only (SVOE recall at 1-1.5 m binds: higher, the carried and "
+                                              "unseen answers of a noisy front-end drop out); 0.05 is the centre",
+                                        min=0.0, max=1.0)
     distance_m: float = knob(0.25, "the confidence is the probability that the answer lies within this distance "
                                    "of the truth (what the calibration below was fitted for), metres", gt=0.0)
     offline_calibration: list = knob(_OFFLINE_CALIBRATION,
