@@ -112,6 +112,13 @@ DEVICE_FRONTEND_SIZES = (("quick", "1 device-world RGB recording x 300 frames (s
 # 27-29), for MVPE too: detector and trackers at one threshold
 VERIFY_VARIANT = ("--variant verify:frontend.verify=all,frontend.verify_threshold=0.3,graph.score_threshold=0.3,"
                   "track.score_threshold=0.3")
+# the held-out device-world RGB recordings bench_frontend_trackers-device builds, and the proposal variants
+DEVICE_RGB = ".cache/bench_fe/device/f300"
+MULTISCALE = "frontend.image_k_scales=[100,300,1000],frontend.image_per_scale=8"
+RECALL_ARGS = ("--recall --recall-step 10 --recall-caps 12 24 48 --runs svoe --skip-vit --cache .cache/bench_fe/models "
+               "--variant current: --variant mesh:frontend.proposals=geometry+mesh+image "
+               f"--variant 'multiscale:{MULTISCALE}' --variant 'mesh+multiscale:frontend.proposals=geometry+mesh+image,"
+               f"{MULTISCALE}'")
 STRONG_POSE_ERROR = ("--synth-set pose_error.drift_trans=0.006 --synth-set pose_error.drift_rot=0.1 "
                      "--synth-set pose_error.jump_rate=0.3 --synth-set 'pose_error.jump_trans=[0.04,0.1]'")
 CONFIDENCE_SIZES = (("quick", "2 held-out recordings x 900 frames (seeds 1, 301)"),
@@ -285,6 +292,19 @@ SECTIONS: tuple[Section, ...] = (
             sizes=(("quick", "one 20-frame synth/tiny recording with PV RGB"),
                    ("full", "one 60-frame synth/tiny recording with PV RGB")),
             modules=BASE + SYNTH + FRONTEND + STEPS, quick_min=6),
+    Section("bench_detect-recall", "Proposal recall in the device world",
+            "Issue 39's item 0: the share of visible instances (at least half visible, true box short side >= 24 px) "
+            "that a proposal covers at IoU >= 0.5, against the proposals per frame, at `detect`'s per-frame cap "
+            "(`frontend.max_proposals`: 12, the default, 24 and 48), by the instance's size in the frame, on the "
+            "held-out device-world RGB recordings (every 10th frame). Variants: the current default "
+            "(`geometry+image`), the objects standing in the scene mesh added (`geometry+mesh+image`), the "
+            "multi-scale image segments (`image_k_scales=[100,300,1000]`, 8 a scale), and both.",
+            f"{PY} tools/bench_detect.py --rec {DEVICE_RGB}/seed21 {DEVICE_RGB}/seed22 {DEVICE_RGB}/seed23 "
+            f"{DEVICE_RGB}/seed24 {DEVICE_RGB}/seed25 {DEVICE_RGB}/seed26 {RECALL_ARGS} --json-tag recall",
+            quick=f"{PY} tools/bench_detect.py --rec {DEVICE_RGB}/seed21 {RECALL_ARGS} --json-tag recall",
+            sizes=(("quick", "1 device-world RGB recording x 300 frames (seed 21), every 10th frame"),
+                   ("full", "6 device-world RGB recordings x 300 frames (seeds 21-26), every 10th frame")),
+            modules=BASE + FRONTEND + STEPS, quick_min=3, after=("bench_frontend_trackers-device",)),
     Section("bench_graph_speed", "Graph solve time against recording length",
             "The offline graph solve (noise-scale fit included, negative evidence excluded) on the MVPE "
             "observations of benchmark recordings (1-5 in the full tier) laid end to end, 8 instances, with both "

@@ -693,7 +693,7 @@ def build_parser() -> argparse.ArgumentParser:
                                                            "(instance x1 y1 x2 y2 det_conf similarity)")
     s.add_argument("--encoder", help="ONNX image encoder (default frontend.encoder; empty: the embedded "
                                      "EfficientNet-lite0)")
-    s.add_argument("--proposals", help="geometry, image, geometry+image or an ONNX mask model "
+    s.add_argument("--proposals", help="geometry, mesh, image, several joined by + (geometry+mesh+image) or an ONNX mask model "
                                        "(default frontend.proposals; for --enroll mvpe frontend.mvpe_proposals)")
     s.add_argument("--guide", type=Path, metavar="RESULTS",
                    help="3D guidance: a results folder of egograph track; in each frame, per instance, the "

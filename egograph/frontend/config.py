@@ -9,7 +9,6 @@ from dataclasses import dataclass
 
 from egograph.core.config import Checked, knob
 
-PROPOSAL_SOURCES = ("geometry", "image", "geometry+image")
 LAYOUTS = ("nchw", "nhwc")
 MVPE_POOLING = ("mean", "max")
 RESIZE_MODES = ("stretch", "pad")
@@ -25,9 +24,17 @@ class FrontendConfig(Checked):
                                             "explain), 'image' (OpenCV graph segmentation), 'geometry+image' "
                                             "(both; on two tuning recordings the image segments found 2-3x the "
                                             "true boxes geometry alone did, far objects 20-30 px across that "
-                                            "AHAT barely sees, for half the speed), or the path of an ONNX mask "
+                                            "AHAT barely sees, for half the speed), 'mesh' (the small objects "
+                                            "standing in the scene mesh, which geometry cannot see because the mesh "
+                                            "explains them), several joined by '+', or the path of an ONNX mask "
                                             "model (input (1, 3, H, W) RGB 0-1, output (1, K, H, W) mask "
-                                            "probabilities)")
+                                            "probabilities). 'mesh' stays opt-in: on the device-like tuning "
+                                            "recordings 27-29 (300 frames) geometry+mesh+image found more "
+                                            "instance-frames (SVOE 51 against 39 of 1282, MVPE 20 against 19) with "
+                                            "more look-alike confusions (22 against 8), and the graph on those "
+                                            "detections did not gain (SVOE P / R @0.25 22.2 / 8.3 against 21.8 / "
+                                            "10.0, L2 3.46 against 3.17 m): the matcher, not the proposals, limits "
+                                            "what is found; its proposal recall is the bench_detect-recall section")
     mvpe_proposals: str = knob("geometry+image", "proposal source for MVPE enrollments (same values as proposals; "
                                                  "empty = proposals). In the device world (issue 38) the objects "
                                                  "that have not moved are part of the scene mesh, so geometry alone "
@@ -143,6 +150,18 @@ class FrontendConfig(Checked):
     box_pad_px: int = knob(6, "geometry: a projected segment's box is padded by this, PV pixels (AHAT "
                               "pixels are ~4x coarser than PV ones)", min=0)
     # image proposals
+    # mesh proposals (egograph.frontend.mesh_objects)
+    mesh_spacing_m: float = knob(0.015, "mesh: the scene mesh's surface is sampled this far apart before its large "
+                                        "planes are removed and the rest clustered (clusters join points within 2.5 "
+                                        "times this), metres", gt=0.0)
+    mesh_plane_min_m2: float = knob(0.05, "mesh: planes with at least this much surface (floor, walls, table tops, "
+                                          "shelves) are support, not objects, square metres", gt=0.0)
+    mesh_min_normal_spread: float = knob(0.15, "mesh: a cluster is an object only when at least this share of its "
+                                               "surface faces more than 30 degrees away from its dominant normal "
+                                               "(a leftover patch of wall or a table's edge is flat)", min=0.0, max=1.0)
+    mesh_min_visible: float = knob(0.15, "mesh: an object is proposed in a frame when at least this share of its "
+                                         "surface points are in the PV image and unoccluded by the mesh",
+                                   min=0.0, max=1.0)
     image_scale: float = knob(0.25, "image: the PV frame is segmented at this scale (speed)", gt=0.0, max=1.0)
     seg_sigma: float = knob(0.8, "image: graph segmentation Gaussian sigma, pixels at image_scale", gt=0.0)
     seg_k: float = knob(300.0, "image: graph segmentation k (larger: larger segments)", gt=0.0)

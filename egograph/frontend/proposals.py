@@ -9,6 +9,10 @@ Sources (``frontend.proposals``):
   poses. A wrapped range leaves the true range ambiguous: the segment is projected at the range
   just in front of the mesh and, when that differs, at the wrapped reading itself (an object held
   near the eye); the parallax between the two sensors makes the boxes differ, the matcher decides.
+* ``mesh``: the small objects standing in the scene mesh (:mod:`egograph.frontend.mesh_objects`:
+  large planes removed, the rest clustered), found once per recording; in each frame the
+  cluster points the PV camera sees (a ray cast against the mesh reaches them) are projected and
+  boxed. Geometry cannot see these objects (the mesh explains them), however far or small.
 * ``image``: OpenCV graph segmentation of the downscaled frame, one box per segment.
 * an ONNX mask model by path: one box per predicted mask.
 
@@ -17,6 +21,7 @@ Sources (``frontend.proposals``):
 
 from __future__ import annotations
 
+import hashlib
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -26,7 +31,8 @@ from egograph.core.errors import InputError
 from egograph.frontend.config import FrontendConfig
 from egograph.geometry.hl2ss import ahat_to_world_matrix, ahat_unit_rays, invert_rigid, pose_validity, pv_project
 
-SOURCE_RANK = {"geometry": 0, "mask": 1, "image": 2}
+BUILTIN_SOURCES = ("geometry", "mesh", "image")
+SOURCE_RANK = {"geometry": 0, "mesh": 1, "mask": 2, "image": 3}
 
 
 @dataclass
@@ -66,7 +72,7 @@ def keep_plausible(props: list[Proposal], shape: tuple[int, int], cfg: FrontendC
 
 
 def nms(props: list[Proposal], iou_max: float, limit: int) -> list[Proposal]:
-    """Greedy non-maximum suppression: geometry first, then mask, then image proposals, larger
+    """Greedy non-maximum suppression: geometry first, then mesh, mask and image proposals, larger
     confidence then larger area first; a box overlapping a kept one by more than ``iou_max`` goes."""
     order = sorted(props, key=lambda p: (SOURCE_RANK.get(p.source, 9), -p.conf, -p.area))
     kept: list[Proposal] = []
@@ -178,6 +184,74 @@ class GeometryProposals:
                 pad = self.cfg.box_pad_px
                 props.append(Proposal((lo[0] - pad, lo[1] - pad, hi[0] + pad, hi[1] + pad), "geometry",
                                       conf=float(min(1.0, len(vs) * self.cfg.depth_stride ** 2 / 50.0))))
+        return props
+
+
+# --------------------------------------------------------------------------- mesh
+
+
+_MESH_OBJECTS: dict = {}   # (mesh digest, parameters) -> its objects, the last few meshes
+
+
+class MeshObjectProposals:
+    """Boxes of the scene mesh's small objects as the PV camera sees them (see module doc). The
+    confidence is the share of the object's surface points in view and unoccluded."""
+
+    def __init__(self, rec, cfg: FrontendConfig):
+        from egograph.frontend.mesh_objects import segment_mesh_objects
+
+        self.rec, self.cfg = rec, cfg
+        self.scene = rec.mesh_scene()
+        if self.scene is None:
+            raise InputError(rec.seq_dir, "mesh proposals need the recording's mesh (mesh/*.ply); none found: "
+                                          "use --proposals image")
+        mesh = rec.mesh()
+        v, t = np.asarray(mesh.vertices), np.asarray(mesh.triangles)
+        params = dict(spacing_m=cfg.mesh_spacing_m, plane_min_m2=cfg.mesh_plane_min_m2, min_extent_m=cfg.min_object_m,
+                      max_extent_m=cfg.max_object_m, min_normal_spread=cfg.mesh_min_normal_spread)
+        # SVOE and MVPE runs of one process (the demo, egograph run) segment a mesh once
+        key = (hashlib.sha1(v.tobytes() + t.tobytes()).hexdigest(), tuple(sorted(params.items())))
+        if key not in _MESH_OBJECTS:
+            if len(_MESH_OBJECTS) >= 4:
+                _MESH_OBJECTS.pop(next(iter(_MESH_OBJECTS)))
+            _MESH_OBJECTS[key] = segment_mesh_objects(v, t, **params)
+        self.objects = _MESH_OBJECTS[key]
+        if self.objects:
+            self.points = np.vstack([o.points for o in self.objects])
+            self.owner = np.repeat(np.arange(len(self.objects)), [len(o.points) for o in self.objects])
+        else:
+            self.points, self.owner = np.zeros((0, 3)), np.zeros(0, np.int64)
+
+    def __call__(self, i: int) -> list[Proposal]:
+        import open3d as o3d
+
+        rec = self.rec
+        pose = rec.pv_poses[i]
+        if not (rec.pv_valid[i] and pose_validity(pose)) or len(self.points) == 0:
+            return []
+        cam_c = pose[3, :3]
+        to_cam = invert_rigid(pose)
+        uv, depth = pv_project(self.points @ to_cam[:3, :3] + to_cam[3, :3], rec.pv.intrinsics)
+        rows, cols = rec.pv.shape
+        ahead = (depth > 0.1) & (uv[:, 0] >= 0) & (uv[:, 0] < cols) & (uv[:, 1] >= 0) & (uv[:, 1] < rows)
+        if not ahead.any():
+            return []
+        sel = np.nonzero(ahead)[0]
+        ray = self.points[sel] - cam_c
+        dist = np.linalg.norm(ray, axis=1)
+        rays = np.concatenate([np.broadcast_to(cam_c, ray.shape), ray / dist[:, None]], axis=1).astype(np.float32)
+        hit = self.scene.cast_rays(o3d.core.Tensor(rays))["t_hit"].numpy()
+        seen = sel[hit >= dist - (0.02 + 0.01 * dist)]
+        counts = np.bincount(self.owner, minlength=len(self.objects))
+        props = []
+        for k in np.unique(self.owner[seen]):
+            mine = seen[self.owner[seen] == k]
+            share = len(mine) / counts[k]
+            if len(mine) < 5 or share < self.cfg.mesh_min_visible:
+                continue
+            lo, hi = uv[mine].min(axis=0), uv[mine].max(axis=0)
+            pad = self.cfg.box_pad_px
+            props.append(Proposal((lo[0] - pad, lo[1] - pad, hi[0] + pad, hi[1] + pad), "mesh", float(share)))
         return props
 
 
@@ -317,17 +391,21 @@ class MaskModelProposals:
 def proposal_sources(rec, cfg: FrontendConfig, name: str | None = None) -> list:
     """The callables ``(i, rgb) -> [Proposal]`` for ``name`` (default ``cfg.proposals``)."""
     name = name or cfg.proposals
-    if name in ("geometry", "image", "geometry+image"):
+    parts = name.split("+")
+    if all(p in BUILTIN_SOURCES for p in parts) and len(set(parts)) == len(parts):
         out = []
-        if "geometry" in name:
+        if "geometry" in parts:
             geo = GeometryProposals(rec, cfg)
             out.append(lambda i, rgb: geo(i))
-        if "image" in name:
+        if "mesh" in parts:
+            mesh = MeshObjectProposals(rec, cfg)
+            out.append(lambda i, rgb: mesh(i))
+        if "image" in parts:
             img = ImageProposals(cfg)
             out.append(lambda i, rgb: img(rgb))
         return out
     if name.endswith(".onnx") or Path(name).is_file():
         mm = MaskModelProposals(name, cfg)
         return [lambda i, rgb: mm(rgb)]
-    raise InputError(Path(name), "unknown proposal source: 'geometry', 'image', 'geometry+image' or an ONNX mask "
-                                 "model file")
+    raise InputError(Path(name), "unknown proposal source: 'geometry', 'mesh' or 'image', or several of them "
+                                 "joined by '+' (e.g. 'geometry+mesh+image'), or an ONNX mask model file")
