@@ -27,7 +27,7 @@ same characters.
 The JSON file (``FORMAT``): ``tool``, ``command`` (as typed, from the repository root),
 ``argv``, ``arguments`` (every parsed argument: seeds, frames, ...), ``environment`` (the
 variables that change speed, e.g. ``LP_NUM_THREADS``), ``egograph`` (version, git ``commit``,
-``dirty``: tracked files differ from the commit), ``packages`` (the installed versions of egograph's
+``dirty``: tracked files other than docs/ and README.md differ from the commit), ``packages`` (the installed versions of egograph's
 dependencies and of Python: records made with other versions say so), ``machine`` (``nproc``, ``cpu_affinity``,
 ``cpu``, ``memory_gb``, ``load_average`` at the start and the end), ``started`` (UTC),
 ``wall_s``, ``items`` (tables and sentences in the order printed) and ``data`` (extra raw
@@ -190,14 +190,16 @@ def _git(*args: str) -> str | None:
 
 def revision() -> dict:
     """egograph's version and the checkout's git commit; ``dirty`` when tracked files outside docs/
-    differ from it."""
+    and README.md differ from it."""
     try:
         from egograph import __version__ as version
     except ImportError:  # pragma: no cover - tools always run with egograph installed
         version = None
     commit = _git("rev-parse", "HEAD")
-    # docs/ (where the figures go) does not change what is measured
-    status = _git("status", "--porcelain", "--untracked-files=no", "--", ".", ":(exclude)docs") if commit else None
+    # docs/ (where the figures go) and README.md (whose score block tools/bench_report.py rewrites after
+    # each README record, while a regeneration runs) do not change what is measured
+    status = _git("status", "--porcelain", "--untracked-files=no", "--", ".", ":(exclude)docs",
+                  ":(exclude)README.md") if commit else None
     return {"version": version, "commit": commit, "dirty": bool(status) if commit else None}
 
 
