@@ -338,3 +338,27 @@ def test_a_record_says_whether_it_was_made_with_the_pinned_versions(tmp_path):
     # every pinned distribution egograph requires is pinned in the committed file
     committed = bench_report.pinned_versions()
     assert {"numpy", "gtsam", "opencv-contrib-python-headless", "scipy", "onnxruntime"} <= set(committed)
+
+
+def test_revision_dirty_ignores_docs_and_readme(tmp_path, monkeypatch):
+    """A record is 'dirty' when code differs from the commit, not when the figures' own outputs do:
+    docs/ and README.md (whose score block a running regeneration rewrites) are left out."""
+    import subprocess
+
+    def git(*args):
+        subprocess.run(["git", "-C", str(tmp_path), "-c", "user.name=t", "-c", "user.email=t@t", *args],
+                       check=True, capture_output=True)
+
+    (tmp_path / "docs").mkdir()
+    for name in ("README.md", "docs/benchmarks.md", "code.py"):
+        (tmp_path / name).write_text("a\n")
+    git("init", "-q")
+    git("add", ".")
+    git("commit", "-q", "-m", "x")
+    monkeypatch.setattr(benchdoc, "REPO", tmp_path)
+    assert benchdoc.revision()["dirty"] is False
+    (tmp_path / "README.md").write_text("scores\n")
+    (tmp_path / "docs" / "benchmarks.md").write_text("figures\n")
+    assert benchdoc.revision()["dirty"] is False
+    (tmp_path / "code.py").write_text("b\n")
+    assert benchdoc.revision()["dirty"] is True
