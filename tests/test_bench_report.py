@@ -362,3 +362,21 @@ def test_revision_dirty_ignores_docs_and_readme(tmp_path, monkeypatch):
     assert benchdoc.revision()["dirty"] is False
     (tmp_path / "code.py").write_text("b\n")
     assert benchdoc.revision()["dirty"] is True
+
+
+def test_concurrent_regenerations_keep_each_others_sections():
+    """Two regenerations of one tier running at once each save the state file: the one that saves
+    last keeps the other's invocation (and its sections) instead of overwriting it."""
+    a = {"started": "2026-12-05T10:00:00+00:00", "argv": ["--only", "x"], "sections": {"x": {"status": "ok"}}}
+    b_old = {"started": "2026-12-05T10:05:00+00:00", "argv": ["--only", "y"], "sections": {}}
+    b_new = {**b_old, "sections": {"y": {"status": "ok"}}}
+    older = {"started": "2026-12-04T09:00:00+00:00", "argv": [], "sections": {}}
+    # process A started before B saved anything; B has since saved y: A's save keeps it
+    on_disk = {"format": bench_report.REGEN_FORMAT, "tier": "full", "invocations": [older, a, b_new]}
+    got = bench_report.merged_invocations(on_disk, [older, a], a)
+    assert [i["started"] for i in got] == [older["started"], a["started"], b_old["started"]]
+    assert got[2]["sections"] == {"y": {"status": "ok"}}
+    # this process's own invocation is saved as it is now, not as the disk had it
+    a_now = {**a, "sections": {"x": {"status": "ok"}, "z": {"status": "failed"}}}
+    got = bench_report.merged_invocations(on_disk, [older, a_now], a_now)
+    assert got[1]["sections"] == a_now["sections"]

@@ -537,6 +537,20 @@ def stamp(path: Path, section: Section, tier: str, command: str) -> dict:
 # --------------------------------------------------------------------------- regeneration
 
 
+def merged_invocations(on_disk: dict | None, known: list[dict], inv: dict) -> list[dict]:
+    """The invocations to save: those this process knows, with ``inv`` as it is now, plus any that
+    another regeneration of the same tier, running at the same time, saved meanwhile (an invocation
+    is known by its start and arguments), in the order they started. Without the merge the one that
+    saves last would drop the other's sections."""
+    key = lambda i: (i.get("started"), tuple(i.get("argv") or ()))  # noqa: E731
+    out = {key(i): i for i in known}
+    if on_disk and on_disk.get("format") == REGEN_FORMAT and on_disk.get("tier") is not None:
+        for i in on_disk.get("invocations") or []:
+            out.setdefault(key(i), i)
+    out[key(inv)] = inv
+    return sorted(out.values(), key=lambda i: i.get("started") or "")
+
+
 def run_command(command: str, cwd: str, env: dict, log: str) -> tuple[int, float, float]:
     """Run one section's shell command (its output to ``log``) -> exit code, wall s, CPU s of the
     children. Module level so that a Dask worker can run it."""
@@ -650,6 +664,8 @@ def regenerate(tier: str, only: list[str] | None, workers: int, scheduler: str |
         inv["wall_s"] = round(time.perf_counter() - t_start, 1)
         inv["load_average"]["end"] = [round(x, 2) for x in os.getloadavg()]
         regen_file.parent.mkdir(parents=True, exist_ok=True)
+        on_disk = json.loads(regen_file.read_text()) if regen_file.is_file() else None
+        log["invocations"] = merged_invocations(on_disk, log["invocations"], inv)
         atomic_write_text(regen_file, benchdoc.dumps(log) + "\n")
 
     def one(s: Section) -> tuple[Section, int]:
