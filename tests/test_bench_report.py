@@ -376,6 +376,11 @@ def test_concurrent_regenerations_keep_each_others_sections():
     got = bench_report.merged_invocations(on_disk, [older, a], a)
     assert [i["started"] for i in got] == [older["started"], a["started"], b_old["started"]]
     assert got[2]["sections"] == {"y": {"status": "ok"}}
+    # two invocations started in the same second with the same arguments stay two
+    c1 = {"id": "1-1", "started": a["started"], "argv": a["argv"], "sections": {"x": {"status": "failed"}}}
+    c2 = {"id": "1-2", "started": a["started"], "argv": a["argv"], "sections": {}}
+    disk2 = {"format": bench_report.REGEN_FORMAT, "tier": "full", "invocations": [c1]}
+    assert len(bench_report.merged_invocations(disk2, [c1, c2], c2)) == 2
     # this process's own invocation is saved as it is now, not as the disk had it
     a_now = {**a, "sections": {"x": {"status": "ok"}, "z": {"status": "failed"}}}
     got = bench_report.merged_invocations(on_disk, [older, a_now], a_now)

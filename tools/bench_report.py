@@ -542,7 +542,7 @@ def merged_invocations(on_disk: dict | None, known: list[dict], inv: dict) -> li
     another regeneration of the same tier, running at the same time, saved meanwhile (an invocation
     is known by its start and arguments), in the order they started. Without the merge the one that
     saves last would drop the other's sections."""
-    key = lambda i: (i.get("started"), tuple(i.get("argv") or ()))  # noqa: E731
+    key = lambda i: i.get("id") or (i.get("started"), tuple(i.get("argv") or ()))  # noqa: E731
     out = {key(i): i for i in known}
     if on_disk and on_disk.get("format") == REGEN_FORMAT and on_disk.get("tier") is not None:
         for i in on_disk.get("invocations") or []:
@@ -652,7 +652,8 @@ def regenerate(tier: str, only: list[str] | None, workers: int, scheduler: str |
     log = json.loads(regen_file.read_text()) if regen_file.is_file() else None
     if log is None or log.get("complete"):   # a new regeneration; else this invocation resumes the last one
         log = {"format": REGEN_FORMAT, "tier": tier, "complete": False, "invocations": []}
-    inv = {"started": _dt.datetime.now(_dt.timezone.utc).replace(microsecond=0).isoformat(),
+    inv = {"id": f"{os.getpid()}-{time.time_ns()}",
+           "started": _dt.datetime.now(_dt.timezone.utc).replace(microsecond=0).isoformat(),
            "argv": sys.argv[1:], "commit": benchdoc.revision().get("commit"), "slots": slots,
            "scheduler": bool(scheduler), "load_average": {"start": [round(x, 2) for x in os.getloadavg()]},
            "sections": {}}
