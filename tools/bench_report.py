@@ -540,7 +540,7 @@ def stamp(path: Path, section: Section, tier: str, command: str) -> dict:
 def merged_invocations(on_disk: dict | None, known: list[dict], inv: dict) -> list[dict]:
     """The invocations to save: those this process knows, with ``inv`` as it is now, plus any that
     another regeneration of the same tier, running at the same time, saved meanwhile (an invocation
-    is known by its start and arguments), in the order they started. Without the merge the one that
+    is known by its ``id``; one saved before ids, by its start and arguments), in the order they started. Without the merge the one that
     saves last would drop the other's sections."""
     key = lambda i: i.get("id") or (i.get("started"), tuple(i.get("argv") or ()))  # noqa: E731
     out = {key(i): i for i in known}
