@@ -147,9 +147,8 @@ class FrontendConfig(Checked):
     near_eye_candidates: bool = knob(False, "geometry: also project a segment at its wrapped reading (an object "
                                             "held within one alias distance of the eye), besides the range just "
                                             "in front of the mesh; more proposals, more encoder time")
-    box_pad_px: int = knob(6, "geometry: a projected segment's box is padded by this, PV pixels (AHAT "
-                              "pixels are ~4x coarser than PV ones)", min=0)
-    # image proposals
+    box_pad_px: int = knob(6, "geometry and mesh: a projected segment's or mesh object's box is padded by "
+                              "this, PV pixels (AHAT pixels are ~4x coarser than PV ones)", min=0)
     # mesh proposals (egograph.frontend.mesh_objects)
     mesh_spacing_m: float = knob(0.015, "mesh: the scene mesh's surface is sampled this far apart before its large "
                                         "planes are removed and the rest clustered (clusters join points within 2.5 "
@@ -162,6 +161,7 @@ class FrontendConfig(Checked):
     mesh_min_visible: float = knob(0.15, "mesh: an object is proposed in a frame when at least this share of its "
                                          "surface points are in the PV image and unoccluded by the mesh",
                                    min=0.0, max=1.0)
+    # image proposals
     image_scale: float = knob(0.25, "image: the PV frame is segmented at this scale (speed)", gt=0.0, max=1.0)
     seg_sigma: float = knob(0.8, "image: graph segmentation Gaussian sigma, pixels at image_scale", gt=0.0)
     seg_k: float = knob(300.0, "image: graph segmentation k (larger: larger segments)", gt=0.0)

@@ -25,11 +25,10 @@ import numpy as np
 @dataclass
 class MeshObject:
     """One object-like cluster of mesh surface: ``points`` (N, 3) world metres, evenly spread over
-    its surface (at most ``max_points``), their outward ``normals`` (N, 3), and its extent, the
-    5-95 percentile size along x, y, z (metres)."""
+    its surface (at most ``max_points``), and its extent, the 5-95 percentile size along x, y, z
+    (metres)."""
 
     points: np.ndarray
-    normals: np.ndarray
     extent: np.ndarray
 
     @property
@@ -85,7 +84,7 @@ def plane_directions(normals: np.ndarray, *, min_points: int, angle_deg: float =
         lat = np.arcsin(np.clip(n[idx, 2], -1, 1))
         lon = np.arctan2(n[idx, 1], n[idx, 0])
         key = np.floor(lat / cell).astype(np.int64) * 1000 + np.floor(lon / cell).astype(np.int64)
-        cells, inv, counts = np.unique(key, return_inverse=True, return_counts=True)
+        _, inv, counts = np.unique(key, return_inverse=True, return_counts=True)
         best = int(np.argmax(counts))
         if counts[best] < min_points / 4:
             break
@@ -196,8 +195,7 @@ def segment_mesh_objects(vertices: np.ndarray, triangles: np.ndarray, *, spacing
         if spread < min_normal_spread:
             continue
         if len(idx) > max_points:
-            pick = np.sort(rng.choice(len(idx), max_points, replace=False))
-            q, qn = q[pick], qn[pick]
-        out.append(MeshObject(q, qn, ext))
+            q = q[np.sort(rng.choice(len(idx), max_points, replace=False))]
+        out.append(MeshObject(q, ext))
     out.sort(key=lambda o: tuple(np.round(o.center, 4)))
     return out

@@ -221,6 +221,7 @@ class MeshObjectProposals:
             self.owner = np.repeat(np.arange(len(self.objects)), [len(o.points) for o in self.objects])
         else:
             self.points, self.owner = np.zeros((0, 3)), np.zeros(0, np.int64)
+        self.n_points = np.bincount(self.owner, minlength=len(self.objects))   # surface points per object
 
     def __call__(self, i: int) -> list[Proposal]:
         import open3d as o3d
@@ -242,11 +243,10 @@ class MeshObjectProposals:
         rays = np.concatenate([np.broadcast_to(cam_c, ray.shape), ray / dist[:, None]], axis=1).astype(np.float32)
         hit = self.scene.cast_rays(o3d.core.Tensor(rays))["t_hit"].numpy()
         seen = sel[hit >= dist - (0.02 + 0.01 * dist)]
-        counts = np.bincount(self.owner, minlength=len(self.objects))
         props = []
         for k in np.unique(self.owner[seen]):
             mine = seen[self.owner[seen] == k]
-            share = len(mine) / counts[k]
+            share = len(mine) / self.n_points[k]
             if len(mine) < 5 or share < self.cfg.mesh_min_visible:
                 continue
             lo, hi = uv[mine].min(axis=0), uv[mine].max(axis=0)
