@@ -9,8 +9,12 @@ segmentation does on a point cloud:
 3. cluster what is left (Open3D ``cluster_dbscan``) and keep the clusters an object could be:
    ``min_extent_m``-``max_extent_m`` across, with at least the surface of a cube of the smallest
    extent standing on a table (five faces: fewer points are a fragment, such as a table top's
-   corner), and not flat (their normals spread: a leftover patch of wall or the edge of a table
-   top has one normal).
+   corner), not flat (their normals spread: a leftover patch of wall or the edge of a table top
+   has one normal), and not lying along the support that was removed (a seam where floor meets
+   wall, or wall meets ceiling, is left over with mixed normals where the mesh rounds the corner;
+   its points all lie within a few centimetres of floor and wall, while an object's rise above
+   its table: at most ``max_support_share`` of a cluster's points within 3 spacings of removed
+   support).
 
 World frame, metres; no up axis is assumed (the planes are found in any orientation).
 """
@@ -163,16 +167,21 @@ def remove_planes(points: np.ndarray, normals: np.ndarray, *, spacing_m: float, 
 
 def segment_mesh_objects(vertices: np.ndarray, triangles: np.ndarray, *, spacing_m: float = 0.015,
                          plane_min_m2: float = 0.05, min_extent_m: float = 0.03, max_extent_m: float = 0.5,
-                         min_normal_spread: float = 0.15, max_points: int = 200, seed: int = 0) -> list[MeshObject]:
+                         min_normal_spread: float = 0.15, max_support_share: float = 0.85, max_points: int = 200,
+                         seed: int = 0) -> list[MeshObject]:
     """The object-like clusters of a scene mesh (see module doc), sorted by their centre (x, then y,
     then z) so the order does not depend on the clustering's. ``min_normal_spread``: share of a
-    cluster's points whose normal lies more than 30 degrees from the cluster's dominant normal direction."""
+    cluster's points whose normal lies more than 30 degrees from the cluster's dominant normal direction;
+    ``max_support_share``: most share of a cluster's points within ``3 * spacing_m`` of the removed
+    support surface (1 keeps every cluster)."""
     import open3d as o3d
+    from scipy.spatial import cKDTree
 
     pts, nrm = sample_surface(vertices, triangles, spacing_m, seed)
     if len(pts) == 0:
         return []
     keep = remove_planes(pts, nrm, spacing_m=spacing_m, plane_min_m2=plane_min_m2)
+    support = cKDTree(pts[~keep]) if (~keep).any() and max_support_share < 1 else None
     pts, nrm = pts[keep], nrm[keep]
     if len(pts) == 0:
         return []
@@ -194,6 +203,10 @@ def segment_mesh_objects(vertices: np.ndarray, triangles: np.ndarray, *, spacing
         spread = float(np.mean(np.abs(qn @ main) < np.cos(np.radians(30))))
         if spread < min_normal_spread:
             continue
+        if support is not None:
+            near, _ = support.query(q, distance_upper_bound=3 * spacing_m)
+            if np.mean(np.isfinite(near)) > max_support_share:
+                continue
         if len(idx) > max_points:
             q = q[np.sort(rng.choice(len(idx), max_points, replace=False))]
         out.append(MeshObject(q, ext))

@@ -208,7 +208,8 @@ class MeshObjectProposals:
         mesh = rec.mesh()
         v, t = np.asarray(mesh.vertices), np.asarray(mesh.triangles)
         params = dict(spacing_m=cfg.mesh_spacing_m, plane_min_m2=cfg.mesh_plane_min_m2, min_extent_m=cfg.min_object_m,
-                      max_extent_m=cfg.max_object_m, min_normal_spread=cfg.mesh_min_normal_spread)
+                      max_extent_m=cfg.max_object_m, min_normal_spread=cfg.mesh_min_normal_spread,
+                      max_support_share=cfg.mesh_max_support_share)
         # SVOE and MVPE runs of one process (the demo, egograph run) segment a mesh once
         key = (hashlib.sha1(v.tobytes() + t.tobytes()).hexdigest(), tuple(sorted(params.items())))
         if key not in _MESH_OBJECTS:
