@@ -526,8 +526,9 @@ def demo_detect(con, rec, out: Path) -> dict[str, tuple[Path, Path]]:
     inputs = {}
     for det_set in ("svoe", "mvpe"):
         config = packaged_config_or_error(f"frontend-{det_set}")
-        # both enrollments match the same proposals (geometry+image; verification does not change
-        # them): MVPE reads the embeddings SVOE's pass kept
+        # MVPE reads the proposals and embeddings SVOE's pass kept when both use one proposal source
+        # (the key says; verification does not change them); by default they differ (SVOE adds the
+        # mesh's objects, frontend.proposals) and MVPE encodes its own
         report = detect(rec, det_set, load_config(EgographConfig, config), out / det_set,
                         embeddings=out / "proposal_embeddings.npz")
         if report is None:

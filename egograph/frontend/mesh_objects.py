@@ -12,7 +12,7 @@ segmentation does on a point cloud:
    corner), not flat (their normals spread: a leftover patch of wall or the edge of a table top
    has one normal), and not lying along the support that was removed (a seam where floor meets
    wall, or wall meets ceiling, is left over with mixed normals where the mesh rounds the corner;
-   its points all lie within a few centimetres of floor and wall, while an object's rise above
+   its points all lie within a few centimetres of floor and wall, while an object rises above
    its table: at most ``max_support_share`` of a cluster's points within 3 spacings of removed
    support).
 

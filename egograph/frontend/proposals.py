@@ -217,12 +217,9 @@ class MeshObjectProposals:
                 _MESH_OBJECTS.pop(next(iter(_MESH_OBJECTS)))
             _MESH_OBJECTS[key] = segment_mesh_objects(v, t, **params)
         self.objects = _MESH_OBJECTS[key]
-        if self.objects:
-            self.points = np.vstack([o.points for o in self.objects])
-            self.owner = np.repeat(np.arange(len(self.objects)), [len(o.points) for o in self.objects])
-        else:
-            self.points, self.owner = np.zeros((0, 3)), np.zeros(0, np.int64)
-        self.n_points = np.bincount(self.owner, minlength=len(self.objects))   # surface points per object
+        self.n_points = np.array([len(o.points) for o in self.objects], np.int64)   # surface points per object
+        self.points = np.vstack([o.points for o in self.objects]) if self.objects else np.zeros((0, 3))
+        self.owner = np.repeat(np.arange(len(self.objects)), self.n_points)
 
     def __call__(self, i: int) -> list[Proposal]:
         import open3d as o3d
