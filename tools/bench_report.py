@@ -116,9 +116,9 @@ VERIFY_VARIANT = ("--variant verify:frontend.verify=all,frontend.verify_threshol
 DEVICE_RGB = ".cache/bench_fe/device/f300"
 MULTISCALE = "frontend.image_k_scales=[100,300,1000],frontend.image_per_scale=8"
 RECALL_ARGS = ("--recall --recall-step 10 --recall-caps 12 24 48 --runs svoe --skip-vit --cache .cache/bench_fe/models "
-               "--variant current: --variant mesh:frontend.proposals=geometry+mesh+image "
-               f"--variant 'multiscale:{MULTISCALE}' --variant 'mesh+multiscale:frontend.proposals=geometry+mesh+image,"
-               f"{MULTISCALE}'")
+               "--variant current: --variant no-mesh:frontend.proposals=geometry+image "
+               f"--variant 'no-mesh+multiscale:frontend.proposals=geometry+image,{MULTISCALE}' "
+               f"--variant 'multiscale:{MULTISCALE}'")
 STRONG_POSE_ERROR = ("--synth-set pose_error.drift_trans=0.006 --synth-set pose_error.drift_rot=0.1 "
                      "--synth-set pose_error.jump_rate=0.3 --synth-set 'pose_error.jump_trans=[0.04,0.1]'")
 CONFIDENCE_SIZES = (("quick", "2 held-out recordings x 900 frames (seeds 1, 301)"),
@@ -275,7 +275,7 @@ SECTIONS: tuple[Section, ...] = (
             "detections, with the opt-in verification (issue 39, `frontend.verify=all`, detector and trackers at "
             "threshold 0.3: for SVOE exactly `--config frontend-svoe`) as a second front-end row in the full tier (the "
             "quick tier has the current front-end only). MVPE's proposals are `geometry+image` since stop 47 (before: `geometry`, 76 / 177 detections on "
-            "the instance). The README's first table (end to end from pixels) is this record's default rows.",
+            "the instance); SVOE's `geometry+mesh+image` since stop 55 (before: `geometry+image`). The README's first table (end to end from pixels) is this record's default rows.",
             f"{PY} tools/bench_frontend_trackers.py --world device --seeds 21 22 23 24 25 26 --frames 300 --no-sot "
             f"--no-guide --no-causal {VERIFY_VARIANT} --json-tag device",
             quick=f"{PY} tools/bench_frontend_trackers.py --world device --seeds 21 --frames 300 --no-sot --no-guide "
@@ -297,8 +297,9 @@ SECTIONS: tuple[Section, ...] = (
             "that a proposal covers at IoU >= 0.5, against the proposals per frame, at `detect`'s per-frame cap "
             "(`frontend.max_proposals`: 12, the default, 24 and 48), by the instance's size in the frame, on the "
             "held-out device-world RGB recordings (every 10th frame). Variants: the current default "
-            "(`geometry+image`), the objects standing in the scene mesh added (`geometry+mesh+image`), the "
-            "multi-scale image segments (`image_k_scales=[100,300,1000]`, 8 a scale), and both.",
+            "(`geometry+mesh+image` since stop 55), without the objects standing in the scene mesh "
+            "(`geometry+image`, the default before), that with the multi-scale image segments "
+            "(`image_k_scales=[100,300,1000]`, 8 a scale), and the default with them.",
             f"{PY} tools/bench_detect.py --rec {DEVICE_RGB}/seed21 {DEVICE_RGB}/seed22 {DEVICE_RGB}/seed23 "
             f"{DEVICE_RGB}/seed24 {DEVICE_RGB}/seed25 {DEVICE_RGB}/seed26 {RECALL_ARGS} --json-tag recall",
             quick=f"{PY} tools/bench_detect.py --rec {DEVICE_RGB}/seed21 {RECALL_ARGS} --json-tag recall",
