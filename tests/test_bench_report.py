@@ -255,6 +255,58 @@ def test_the_module_digest_changes_with_the_code_and_the_page_says_so(tmp_path, 
     assert "whether its code changed since is not known" in page
 
 
+def test_a_front_end_default_does_not_mark_the_tracker_sections_changed(tmp_path):
+    """A packaged config counts by what a section's code can read: the ``frontend`` block only for
+    sections that exercise egograph/frontend, comments for none; any other key for every section."""
+    repo = tmp_path / "repo"
+    (repo / "tools").mkdir(parents=True)
+    (repo / "egograph" / "configs").mkdir(parents=True)
+    (repo / "tools" / "bench_madeup.py").write_text("print(1)\n")
+    cfg = repo / "egograph" / "configs" / "default.yaml"
+    cfg.write_text("# defaults\ngraph:\n  min_observations: 4\nfrontend:\n  proposals: geometry+image\n")
+    tracker = ("tools/bench_madeup.py", "egograph/configs")
+    frontend = (*tracker, "egograph/frontend")
+    t0, f0 = bench_report.modules_digest(tracker, repo), bench_report.modules_digest(frontend, repo)
+    cfg.write_text("# the defaults, reworded\ngraph:\n  min_observations: 4\nfrontend:\n  proposals: geometry+image\n")
+    assert (bench_report.modules_digest(tracker, repo), bench_report.modules_digest(frontend, repo)) == (t0, f0)
+    cfg.write_text("graph:\n  min_observations: 4\nfrontend:\n  proposals: geometry+mesh+image\n")
+    assert bench_report.modules_digest(tracker, repo) == t0
+    assert bench_report.modules_digest(frontend, repo) != f0
+    cfg.write_text("graph:\n  min_observations: 6\nfrontend:\n  proposals: geometry+mesh+image\n")
+    assert bench_report.modules_digest(tracker, repo) != t0
+    # scheme 1 (every byte) still reads as it did, for records made before scheme 2
+    assert bench_report.modules_digest(tracker, repo, scheme=1) != bench_report.modules_digest(tracker, repo)
+
+
+def test_old_digests_are_upgraded_only_where_their_commit_reproduces_them(tmp_path):
+    import subprocess
+
+    repo = tmp_path / "repo"
+    (repo / "tools").mkdir(parents=True)
+    (repo / "egograph" / "configs").mkdir(parents=True)
+    (repo / "tools" / "bench_madeup.py").write_text("print(1)\n")
+    cfg = repo / "egograph" / "configs" / "default.yaml"
+    cfg.write_text("graph:\n  min_observations: 4\nfrontend:\n  proposals: geometry+image\n")
+    git = ["git", "-C", str(repo), "-c", "user.name=t", "-c", "user.email=t@t"]
+    subprocess.run([*git, "init", "-q"], check=True)
+    subprocess.run([*git, "add", "-A"], check=True)
+    subprocess.run([*git, "commit", "-qm", "c"], check=True)
+    commit = subprocess.run([*git, "rev-parse", "HEAD"], capture_output=True, text=True, check=True).stdout.strip()
+    sec = bench_report.Section("bench_madeup", "Made-up", "What it measures.", "x", modules=("egograph/configs",))
+    old = bench_report.modules_digest(sec.paths(), repo, scheme=1)
+    made = lambda digest: {"egograph": {"commit": commit}, "regeneration": {  # noqa: E731
+        "tier": "quick", "modules": list(sec.paths()), "modules_digest": digest}}
+    cfg.write_text("graph:\n  min_observations: 4\nfrontend:\n  proposals: geometry+mesh+image\n")
+    good, bad = made(old), made("0123456789abcdef")   # bad: made on code its commit does not hold
+    assert bench_report.modules_changed(sec, good, repo) is True   # scheme 1: every byte counts
+    assert bench_report.upgrade_digest(good, repo) and good["regeneration"]["digest_scheme"] == 2
+    assert bench_report.modules_changed(sec, good, repo) is False   # only the front-end block changed
+    assert not bench_report.upgrade_digest(bad, repo) and bench_report.modules_changed(sec, bad, repo) is True
+    assert not bench_report.upgrade_digest(good, repo)   # already upgraded
+    cfg.write_text("graph:\n  min_observations: 6\n")
+    assert bench_report.modules_changed(sec, good, repo) is True
+
+
 WRITER = """import sys
 sys.path.insert(0, {tools!r})
 import benchdoc

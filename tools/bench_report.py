@@ -478,23 +478,84 @@ SECTIONS: tuple[Section, ...] = (
 DIGEST_SUFFIXES = (".py", ".yaml", ".yml", ".json", ".txt")
 
 
-def modules_digest(paths: tuple[str, ...] | list[str], repo: Path = REPO) -> str:
-    """sha256 (16 hex digits) of the files under ``paths`` (folders or files, relative to ``repo``):
-    each file's relative path and bytes, in sorted order; a path that does not exist counts as such.
-    The same code gives the same digest in every clone."""
-    h = hashlib.sha256()
-    for rel in paths:
+CONFIG_DIR = "egograph/configs"
+DIGEST_SCHEME = 2
+"""1: every file's bytes. 2: the same for code; a packaged YAML config counts by what the section's
+code can read of it (:func:`config_view`): its parsed content, without comments or layout, and without
+its ``frontend`` block when the section does not exercise ``egograph/frontend``. Under 1 a change of a
+front-end default (``frontend.proposals``) marked every tracker section changed."""
+
+
+def exercises(paths: tuple[str, ...] | list[str], package: str) -> bool:
+    """Whether ``paths`` cover ``package`` (a folder from the repository root)."""
+    return any(p == package or p.startswith(package + "/") or package.startswith(p + "/") for p in paths)
+
+
+def config_view(data: bytes, paths: tuple[str, ...] | list[str]) -> bytes:
+    """The part of a packaged YAML config that code under ``paths`` can read, canonical (sorted JSON):
+    a section that does not exercise ``egograph/frontend`` reads no ``frontend`` block."""
+    import yaml
+
+    doc = yaml.safe_load(data.decode())
+    if isinstance(doc, dict) and not exercises(paths, "egograph/frontend"):
+        doc = {k: v for k, v in doc.items() if k != "frontend"}
+    return json.dumps(doc, sort_keys=True, default=str).encode()
+
+
+def _tree_files(rel: str, repo: Path, commit: str | None) -> dict[str, bytes] | None:
+    """The digest's files under ``rel`` (path -> bytes) in the working tree, or at ``commit`` (git);
+    None when ``rel`` does not exist."""
+    if commit is None:
         p = repo / rel
         if p.is_dir():
             files = sorted(f for f in p.rglob("*") if f.is_file() and f.suffix in DIGEST_SUFFIXES
                            and "__pycache__" not in f.parts)
         else:
             files = [p] if p.is_file() else []
+        return {f.relative_to(repo).as_posix(): f.read_bytes() for f in files} or None
+    names = subprocess.run(["git", "-C", str(repo), "ls-tree", "-r", "--name-only", commit, "--", rel],
+                           capture_output=True, text=True, check=True).stdout.split()
+    names = sorted(n for n in names if Path(n).suffix in DIGEST_SUFFIXES and "__pycache__" not in Path(n).parts)
+    return {n: subprocess.run(["git", "-C", str(repo), "show", f"{commit}:{n}"], capture_output=True,
+                              check=True).stdout for n in names} or None
+
+
+def modules_digest(paths: tuple[str, ...] | list[str], repo: Path = REPO, *, scheme: int = DIGEST_SCHEME,
+                   commit: str | None = None) -> str:
+    """sha256 (16 hex digits) of the files under ``paths`` (folders or files, relative to ``repo``):
+    each file's relative path and content, in sorted order (content: see :data:`DIGEST_SCHEME`); a path
+    that does not exist counts as such. The working tree's files, or those of ``commit``. The same code
+    gives the same digest in every clone."""
+    h = hashlib.sha256()
+    for rel in paths:
+        files = _tree_files(rel, repo, commit)
         if not files:
             h.update(f"missing {rel}\0".encode())
-        for f in files:
-            h.update(f.relative_to(repo).as_posix().encode() + b"\0" + f.read_bytes() + b"\0")
+            continue
+        for name, data in files.items():
+            if scheme >= 2 and name.startswith(CONFIG_DIR + "/") and Path(name).suffix in (".yaml", ".yml"):
+                data = config_view(data, paths)
+            h.update(name.encode() + b"\0" + data + b"\0")
     return h.hexdigest()[:16]
+
+
+def upgrade_digest(doc: dict, repo: Path = REPO) -> bool:
+    """Rewrite a record's scheme-1 module digest as scheme 2, when its commit's files give the digest
+    it keeps (so that commit is the code it was made on): True when rewritten. A record whose digest
+    its commit does not reproduce (made on uncommitted code) keeps it, and counts as changed."""
+    reg = regeneration_of(doc)
+    commit = (doc.get("egograph") or {}).get("commit")
+    if not reg.get("modules_digest") or reg.get("digest_scheme", 1) >= DIGEST_SCHEME or not commit:
+        return False
+    paths = reg.get("modules") or []
+    try:
+        if modules_digest(paths, repo, scheme=1, commit=commit) != reg["modules_digest"]:
+            return False
+        reg["modules_digest"] = modules_digest(paths, repo, commit=commit)
+    except subprocess.CalledProcessError:   # the commit is not in this clone
+        return False
+    reg["digest_scheme"] = DIGEST_SCHEME
+    return True
 
 
 def regeneration_of(doc: dict) -> dict:
@@ -510,7 +571,7 @@ def modules_changed(section: Section, doc: dict, repo: Path = REPO) -> bool | No
     reg = regeneration_of(doc)
     if not reg.get("modules_digest"):
         return None
-    return reg["modules_digest"] != modules_digest(section.paths(), repo)
+    return reg["modules_digest"] != modules_digest(section.paths(), repo, scheme=reg.get("digest_scheme", 1))
 
 
 def is_current(section: Section, doc: dict | None, tier: str, repo: Path = REPO) -> bool:
@@ -530,7 +591,8 @@ def stamp(path: Path, section: Section, tier: str, command: str) -> dict:
 
     doc = json.loads(path.read_text())
     doc["regeneration"] = {"tier": tier, "sizes": section.size(tier), "section_command": command,
-                           "modules": list(section.paths()), "modules_digest": modules_digest(section.paths())}
+                           "modules": list(section.paths()), "modules_digest": modules_digest(section.paths()),
+                           "digest_scheme": DIGEST_SCHEME}
     atomic_write_text(path, benchdoc.dumps(doc) + "\n")
     return doc
 
@@ -743,6 +805,23 @@ def regenerate(tier: str, only: list[str] | None, workers: int, scheduler: str |
 # --------------------------------------------------------------------------- rendering
 
 
+def upgrade_digests(bench_dir: Path, repo: Path = REPO) -> tuple[int, int]:
+    """:func:`upgrade_digest` on every record of ``bench_dir`` and its README copies, each rewritten
+    atomically; prints and returns (rewritten, left as they were)."""
+    from egograph.io.atomic import atomic_write_text
+
+    done = kept = 0
+    for p in sorted([*bench_dir.glob("*.json"), *(bench_dir / README_DIR_NAME).glob("*.json")]):
+        doc = json.loads(p.read_text())
+        if doc.get("format") == benchdoc.FORMAT and upgrade_digest(doc, repo):
+            atomic_write_text(p, benchdoc.dumps(doc) + "\n")
+            done += 1
+        else:
+            kept += 1
+    print(f"module digests: {done} records rewritten to scheme {DIGEST_SCHEME}, {kept} left as they were")
+    return done, kept
+
+
 def load(bench_dir: Path) -> dict[str, dict]:
     """Every ``*.json`` in ``bench_dir`` by stem; a file that is not a benchmark record is an error
     naming it."""
@@ -906,7 +985,8 @@ def render(docs: dict[str, dict], sections: tuple[Section, ...] = SECTIONS, rege
            "this page after each: the quick tier on fewer or shorter recordings of the same held-out seeds (its "
            "sizes are stated in each section), the full tier at the sizes below, each section a task on the Dask "
            "cluster at ADDR when one is given. A section whose record is current for the tier and the code (the "
-           "digest of the modules it exercises, kept in the record) is not run again, so a killed regeneration "
+           "digest of the modules it exercises, kept in the record; a packaged YAML config counts by the settings the "
+           "section can read: its front-end block only where the front-end is exercised) is not run again, so a killed regeneration "
            "resumes where it stopped. Each section states its tier, the commit its record was made at and "
            "whether that code changed since.", ""]
     out += regeneration_header(regens or {})
@@ -1095,6 +1175,10 @@ def main(argv: list[str] | None = None) -> int:
                        help="run N sections at once on this machine (default 1)")
     where.add_argument("--scheduler", metavar="ADDR", help="run each section as a task on the Dask cluster at ADDR "
                                                            "(the repository at the same path on every worker)")
+    ap.add_argument("--upgrade-digests", action="store_true",
+                    help="rewrite the module digests of records made under an older digest scheme "
+                         "(DIGEST_SCHEME) from the files of the commit each was made at, where that commit "
+                         "reproduces the old digest; then render")
     g.add_argument("--force", action="store_true", help="run the chosen sections even when their record is current")
     g.add_argument("--longest-first", action="store_true",
                    help="start the longest sections first (their last measured wall time in this tier): with "
@@ -1106,6 +1190,8 @@ def main(argv: list[str] | None = None) -> int:
             ap.error("--regenerate writes records: not with --check or --commands")
         return regenerate(args.tier, args.only, args.workers, args.scheduler, args.bench_dir, args.out, args.force,
                           longest=args.longest_first)
+    if args.upgrade_digests:
+        upgrade_digests(args.bench_dir)
     docs = load(args.bench_dir)
     if args.commands:
         sys.stdout.write(commands(docs, args.missing, args.tier if "--tier" in (argv or sys.argv) else "full"))
