@@ -255,15 +255,21 @@ def test_the_module_digest_changes_with_the_code_and_the_page_says_so(tmp_path, 
     assert "whether its code changed since is not known" in page
 
 
-def test_a_front_end_default_does_not_mark_the_tracker_sections_changed(tmp_path):
-    """A packaged config counts by what a section's code can read: the ``frontend`` block only for
-    sections that exercise egograph/frontend, comments for none; any other key for every section."""
+def _config_repo(tmp_path: Path, default_yaml: str) -> tuple[Path, Path]:
+    """A repository with a made-up tool and a packaged ``egograph/configs/default.yaml``: (root, that file)."""
     repo = tmp_path / "repo"
     (repo / "tools").mkdir(parents=True)
     (repo / "egograph" / "configs").mkdir(parents=True)
     (repo / "tools" / "bench_madeup.py").write_text("print(1)\n")
     cfg = repo / "egograph" / "configs" / "default.yaml"
-    cfg.write_text("# defaults\ngraph:\n  min_observations: 4\nfrontend:\n  proposals: geometry+image\n")
+    cfg.write_text(default_yaml)
+    return repo, cfg
+
+
+def test_a_front_end_default_does_not_mark_the_tracker_sections_changed(tmp_path):
+    """A packaged config counts by what a section's code can read: the ``frontend`` block only for
+    sections that exercise egograph/frontend, comments for none; any other key for every section."""
+    repo, cfg = _config_repo(tmp_path, "# defaults\ngraph:\n  min_observations: 4\nfrontend:\n  proposals: geometry+image\n")
     tracker = ("tools/bench_madeup.py", "egograph/configs")
     frontend = (*tracker, "egograph/frontend")
     t0, f0 = bench_report.modules_digest(tracker, repo), bench_report.modules_digest(frontend, repo)
@@ -281,12 +287,7 @@ def test_a_front_end_default_does_not_mark_the_tracker_sections_changed(tmp_path
 def test_old_digests_are_upgraded_only_where_their_commit_reproduces_them(tmp_path):
     import subprocess
 
-    repo = tmp_path / "repo"
-    (repo / "tools").mkdir(parents=True)
-    (repo / "egograph" / "configs").mkdir(parents=True)
-    (repo / "tools" / "bench_madeup.py").write_text("print(1)\n")
-    cfg = repo / "egograph" / "configs" / "default.yaml"
-    cfg.write_text("graph:\n  min_observations: 4\nfrontend:\n  proposals: geometry+image\n")
+    repo, cfg = _config_repo(tmp_path, "graph:\n  min_observations: 4\nfrontend:\n  proposals: geometry+image\n")
     git = ["git", "-C", str(repo), "-c", "user.name=t", "-c", "user.email=t@t"]
     subprocess.run([*git, "init", "-q"], check=True)
     subprocess.run([*git, "add", "-A"], check=True)
