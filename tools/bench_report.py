@@ -19,6 +19,7 @@ from __future__ import annotations
 import argparse
 import datetime as _dt
 import difflib
+import functools
 import hashlib
 import json
 import os
@@ -513,10 +514,17 @@ def _tree_files(rel: str, repo: Path, commit: str | None) -> dict[str, bytes] | 
         else:
             files = [p] if p.is_file() else []
         return {f.relative_to(repo).as_posix(): f.read_bytes() for f in files} or None
-    names = subprocess.run(["git", "-C", str(repo), "ls-tree", "-r", "--name-only", commit, "--", rel],
+    return _commit_files(str(repo), commit, rel)
+
+
+@functools.lru_cache(maxsize=None)
+def _commit_files(repo: str, commit: str, rel: str) -> dict[str, bytes] | None:
+    """:func:`_tree_files` at ``commit``, read once: a commit's files never change, and both digest
+    schemes of every record made at one commit read the same ones (:func:`upgrade_digest`)."""
+    names = subprocess.run(["git", "-C", repo, "ls-tree", "-r", "--name-only", commit, "--", rel],
                            capture_output=True, text=True, check=True).stdout.split()
     names = sorted(n for n in names if Path(n).suffix in DIGEST_SUFFIXES and "__pycache__" not in Path(n).parts)
-    return {n: subprocess.run(["git", "-C", str(repo), "show", f"{commit}:{n}"], capture_output=True,
+    return {n: subprocess.run(["git", "-C", repo, "show", f"{commit}:{n}"], capture_output=True,
                               check=True).stdout for n in names} or None
 
 
