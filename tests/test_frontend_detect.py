@@ -251,8 +251,44 @@ def test_verification_writes_a_probability_and_which_model_gave_it(detected, tmp
     assert all(len(v) == len({(d.box.x_min, d.box.y_min, d.box.x_max, d.box.y_max) for d in v}) for v in dets.values())
     assert report.seconds["verify"] > 0 and report.frames == len(rec)
     assert got and all(len(g[4]) == len(FEATURES) for g in got)
+    # with each box's size at depth; MVPE photos give no enrolled size
+    assert all(len(g) == 9 and np.isnan(g[8]) for g in got) and any(np.isfinite(g[7]) for g in got)
+    assert report.enrolled_size_m == {}
     # the shortlist: at most verify_top_k pairs per instance and frame
     per = {}
     for i, inst, *_ in got:
         per[(i, inst)] = per.get((i, inst), 0) + 1
     assert max(per.values()) <= vcfg.frontend.verify_top_k
+
+
+def test_box_sizes_measure_the_instances_at_their_depth(device_rec):
+    """BoxSizes (the verification's 3D plausibility) in the device-like world: an instance's true box
+    (at least 90 % visible, short side 12 px or more), measured at the depth behind it, lies between
+    its object's smallest extent / 1.5 and largest extent x 1.5 (scene.json), and across the boxes
+    the median is within 0.9-1.4 of the geometric mean of the object's two largest extents (a box is
+    the outline of the object seen obliquely; 1.15 measured); a frame without depth measures nothing
+    (NaN)."""
+    import json
+
+    from egograph.steps.detect import BoxSizes
+
+    cfg = cfg_for()
+    rec = open_recording(device_rec, cfg)
+    sizes = BoxSizes(rec, cfg.lift)
+    ext = [np.sort(np.asarray(o["size"], float))
+           for o in json.loads((rec.synth_gt_dir / "scene.json").read_text())["objects"]]
+    with np.load(rec.synth_gt_dir / "instances.npz") as gt:
+        boxes, visible = gt["boxes"], gt["visible"]
+    ratios = []
+    for i in range(0, len(rec), 5):
+        for k in np.flatnonzero((visible[i] >= 0.9) & np.isfinite(boxes[i][:, 0])):
+            b = boxes[i][k]
+            if min(b[2] - b[0], b[3] - b[1]) < 12:
+                continue
+            s = sizes(i, [b])[0]
+            assert np.isfinite(s) and ext[k][0] / 1.5 <= s <= ext[k][2] * 1.5, (i, k, s, ext[k])
+            ratios.append(s / np.sqrt(ext[k][1] * ext[k][2]))
+    assert len(ratios) >= 10
+    assert 0.9 <= np.median(ratios) <= 1.4, np.median(ratios)
+    sizes._frame = (0, sizes._frame[1], None)   # frame 0 as if its depth image were missing
+    assert np.isnan(sizes(0, [boxes[0][0]])).all()

@@ -20,7 +20,7 @@ from egograph.frontend.config import FrontendConfig  # noqa: E402
 from egograph.frontend.encoder import Preprocess, as_rgb  # noqa: E402
 from egograph.frontend.matching import crop  # noqa: E402
 from egograph.frontend.proposals import ImageProposals, integral_lab, iou, objectness  # noqa: E402
-from egograph.frontend.verify import (FEATURES, Verifier, calibrate, expected_calibration_error,  # noqa: E402
+from egograph.frontend.verify import (FEATURES, Verifier, calibrate, expected_calibration_error, size_features,  # noqa: E402
                                       fallback_rows, feature_rows, probability, textured)
 
 # objects of the left view (x1, y1, x2, y2; pixels of the 741 x 500 image), each with texture
@@ -100,7 +100,8 @@ def test_verification_finds_the_object_in_the_other_view_and_rejects_every_other
                      np.array([e[2] for e in ev]))
     tex = np.array([textured(v.features(c), c.shape, cfg) for c in crops])
     pair = np.where(tex, probability(x, cfg.verify_coef_svoe), probability(fallback_rows(x), cfg.verify_fallback_svoe))
-    p = calibrate(pair, tex, cfg.verify_calib_svoe)        # as egograph detect emits it
+    no_depth = size_features(np.full(n, np.nan), np.nan, cfg.verify_size_range_m)   # photographs: no depth
+    p = calibrate(pair, tex, cfg.verify_calib_svoe, no_depth)        # as egograph detect emits it
     if name == "oil bottle":   # 24 x 38 px here: under verify_min_side_px, scored without its local features
         assert not tex[0]
     else:
@@ -219,3 +220,25 @@ def test_calibration_map_and_one_instance_per_proposal():
     assert m[0, 0] == 0.6 and m[1, 1] == 0.4            # proposal 0 is instance 0's, proposal 1 instance 1's
     assert np.isneginf(m[1, 0]) and np.isneginf(m[0, 1])
     assert np.isneginf(m[0, 2]) and m[1, 2] == 0.1       # instance 0 did not shortlist proposal 2
+
+
+def test_size_terms_of_the_calibration_map():
+    """size_features: no depth -> (1, 0, 0, 0); a box at its instance's enrolled size -> ratio 0; twice
+    the size -> log 2; the ratio capped at 2; outside the plausible range by log(low / size) or
+    log(size / high). calibrate: the identity with zero size weights; under the shipped SVOE map a
+    pair scores higher at the enrolled size than at four times it, and a 2 cm or 2 m box lower
+    than one inside the range."""
+    f = size_features([np.nan, 0.1, 0.2, 10.0, 0.02, 2.0], [0.1, 0.1, 0.1, 0.1, np.nan, np.nan], (0.04, 0.4))
+    assert f[0].tolist() == [1.0, 0.0, 0.0, 0.0]
+    assert f[1].tolist() == [0.0, 0.0, 1.0, 0.0]
+    assert f[2] == pytest.approx([0.0, np.log(2.0), 1.0, 0.0])
+    assert f[3] == pytest.approx([0.0, 2.0, 1.0, np.log(10.0 / 0.4)])
+    assert f[4] == pytest.approx([0.0, 0.0, 0.0, np.log(2.0)])
+    assert f[5] == pytest.approx([0.0, 0.0, 0.0, np.log(5.0)])
+    p = np.array([0.2, 0.6])
+    assert np.allclose(calibrate(p, np.ones(2, bool), [0.0, 1.0, 0.0, 0, 0, 0, 0], f[:2]), p)
+    cfg = FrontendConfig()
+    at = size_features(np.array([0.1, 0.4, 0.15, 0.02, 2.0]), np.array([0.1, 0.1, np.nan, np.nan, np.nan]),
+                       cfg.verify_size_range_m)
+    q = calibrate(np.full(5, 0.5), np.ones(5, bool), cfg.verify_calib_svoe, at)
+    assert q[0] > q[1] and q[2] > q[3] and q[2] > q[4]

@@ -15,14 +15,17 @@ with its true box or the box centre inside it. Two stages, both L2-regularised l
 1. the pair model, on every shortlisted pair: one on the crops with keypoints, one on the fallback
    features (every pair: the more data, the steadier);
 2. the calibration map (egograph.frontend.verify.calibrate), on each instance's most probable owned
-   proposal per frame (the detections, before the threshold) by the pair model of stage 1.
+   proposal per frame (the detections, before the threshold) by the pair model of stage 1, with the
+   boxes' 3D plausibility (egograph.frontend.verify.size_features: each box's size at its depth
+   against the instance's at enrollment and against ``frontend.verify_size_range_m``).
 
 Cross-validation: each recording is scored by the two stages fitted on the others, the detections
 selected as ``egograph detect`` selects them (``verify_top_k``, ``verify_threshold``, one instance per
 proposal); prints their calibration error (ECE), how many are on the instance and how many
 instance-frames they find. The printed coefficients are fitted on every recording. The collected
 pairs are saved (``fit_verify_<set>.npz`` in the cache) so that ``--from-collected`` refits without
-detecting.
+detecting (pairs saved before the sizes were collected get them measured on the recordings of
+``--seeds``, as ``egograph detect`` measures them).
 """
 
 from __future__ import annotations
@@ -35,6 +38,7 @@ from pathlib import Path
 import numpy as np
 
 REPO = Path(__file__).resolve().parents[1]
+SIZE_RANGE_M = (0.04, 0.4)   # frontend.verify_size_range_m, set from the configuration in main()
 
 
 def box_hits(box, true_boxes: np.ndarray, visible: np.ndarray) -> np.ndarray:
@@ -71,7 +75,31 @@ def collected_arrays(rec, got: list, rec_id: int) -> dict[str, np.ndarray]:
         other[n] = bool(np.delete(h, g[1]).any()) if g[1] < len(h) else bool(h.any())
     return {"rec": np.full(len(got), rec_id), "frame": frame, "instance": inst,
             "box": np.array([g[2] for g in got], float).reshape(-1, 4), "textured": np.array([g[3] for g in got], bool),
-            "x": np.stack([g[4] for g in got]) if got else np.zeros((0, 7)), "rank": rank, "own": own, "other": other}
+            "x": np.stack([g[4] for g in got]) if got else np.zeros((0, 7)), "rank": rank, "own": own, "other": other,
+            "size": np.array([g[7] for g in got], float), "enrolled": np.array([g[8] for g in got], float)}
+
+
+def measure_sizes(d: dict, roots: list, cfg) -> None:
+    """Add ``size`` and ``enrolled`` (metres, as ``egograph detect`` measures them under verification)
+    to pairs collected without them; ``roots``: the recordings in the order of ``d["rec"]``."""
+    from egograph.io.annotations import load_annotations
+    from egograph.steps.detect import BoxSizes
+    from egograph.steps.recording import open_recording, require_svoe
+
+    d["size"], d["enrolled"] = np.full(len(d["rec"]), np.nan), np.full(len(d["rec"]), np.nan)
+    for r, root in enumerate(roots):
+        rec = open_recording(root, cfg)
+        sizes = BoxSizes(rec, cfg.lift)
+        enrolled = {}
+        for e in load_annotations(rec.annotation_dir, svoe_path=require_svoe(rec)).svoe:
+            if e.instance not in enrolled:   # one enrollment per instance, as enroll_svoe: the first line
+                rgb_shape = rec.pv.shape[:2]
+                b = e.box
+                box = (max(b.x_min, 0), max(b.y_min, 0), min(b.x_max, rgb_shape[1]), min(b.y_max, rgb_shape[0]))
+                enrolled[e.instance] = float(sizes(rec.index_of(e.ts), [box])[0])
+        for n in np.flatnonzero(d["rec"] == r):
+            d["size"][n] = sizes(int(d["frame"][n]), [d["box"][n]])[0]
+            d["enrolled"][n] = enrolled.get(int(d["instance"][n]), np.nan)
 
 
 def visible_frames(rec, frames) -> int:
@@ -90,6 +118,13 @@ def fit(x: np.ndarray, y: np.ndarray, c: float) -> list[float] | None:
         return None
     m = LogisticRegression(C=c, max_iter=5000).fit(x, y)
     return [round(float(m.intercept_[0]), 4), *(round(float(w), 4) for w in m.coef_[0])]
+
+
+def size_terms(d: dict) -> np.ndarray:
+    """The pairs' 3D-plausibility terms (egograph.frontend.verify.size_features)."""
+    from egograph.frontend.verify import size_features
+
+    return size_features(d["size"], d["enrolled"], SIZE_RANGE_M)
 
 
 def pair_probability(d: dict, full, fallback) -> np.ndarray:
@@ -140,16 +175,17 @@ def fit_stages(d: dict, top_k: int, c: float, pair_model=None):
         raise SystemExit(f"only one label among {len(t)} shortlisted pairs: nothing to fit")
     p = pair_probability(s, full, fb)
     cand = candidates(s, p)
-    calib = calibration(p[cand], s["textured"][cand], s["own"][cand])
+    calib = calibration(p[cand], s["textured"][cand], size_terms(s)[cand], s["own"][cand])
     return full, fb, calib, s
 
 
-def calibration(p: np.ndarray, textured: np.ndarray, y: np.ndarray) -> list[float]:
-    """[a, b, c] of :func:`egograph.frontend.verify.calibrate`, fitted on candidates; the identity
-    when they carry one label only. Weakly regularised (C = 100): three coefficients, hundreds of rows."""
+def calibration(p: np.ndarray, textured: np.ndarray, size_x: np.ndarray, y: np.ndarray) -> list[float]:
+    """[a, b, c, d...] of :func:`egograph.frontend.verify.calibrate`, fitted on candidates; the
+    identity when they carry one label only. Weakly regularised (C = 100): seven coefficients,
+    hundreds of rows."""
     q = np.clip(p, 1e-9, 1 - 1e-9)
-    got = fit(np.column_stack([np.log(q / (1 - q)), textured]), y, 100.0)
-    return [0.0, 1.0, 0.0] if got is None else got
+    got = fit(np.column_stack([np.log(q / (1 - q)), textured, size_x]), y, 100.0)
+    return [0.0, 1.0, 0.0, *[0.0] * size_x.shape[1]] if got is None else got
 
 
 def emitted(d: dict, stages, threshold: float) -> np.ndarray:
@@ -157,7 +193,7 @@ def emitted(d: dict, stages, threshold: float) -> np.ndarray:
     from egograph.frontend.verify import calibrate
 
     full, fb, calib = stages
-    q = calibrate(pair_probability(d, full, fb), d["textured"], calib)
+    q = calibrate(pair_probability(d, full, fb), d["textured"], calib, size_terms(d))
     cand = candidates(d, q)
     keep = cand[q[cand] >= threshold]
     return keep, q[keep]
@@ -192,6 +228,8 @@ def main() -> None:
 
     cfg = load_config(EgographConfig, default_config(), ["frontend.verify=all", *args.overrides])
     fc = cfg.frontend
+    global SIZE_RANGE_M
+    SIZE_RANGE_M = tuple(fc.verify_size_range_m)
     for det_set in args.sets:
         saved = args.cache / f"fit_verify_{det_set}.npz"
         if args.from_collected:
@@ -200,6 +238,13 @@ def main() -> None:
             with np.load(saved) as z:
                 d = {k: z[k] for k in z.files if k != "visible"}
                 n_visible = z["visible"]
+            if "size" not in d:   # collected before the sizes were: measured on the recordings, and saved
+                roots = rgb_benchmark_set(args.seeds, args.frames, config=world_config(args.world), cache=args.cache)
+                if len(roots) != len(np.unique(d["rec"])):
+                    raise SystemExit(f"--from-collected: {saved} holds {len(np.unique(d['rec']))} recordings, "
+                                     f"--seeds names {len(roots)}")
+                measure_sizes(d, roots, cfg)
+                np.savez(saved, visible=n_visible, **d)
         else:
             roots = rgb_benchmark_set(args.seeds, args.frames, config=world_config(args.world), cache=args.cache)
             parts, n_visible = [], []

@@ -14,7 +14,10 @@ The score written is a calibrated probability (logistic regression, coefficients
 configuration, fitted on tuning recordings by ``tools/fit_verify.py``) from: the embedding cosine,
 its margin over the best other instance, (under whitening) the whitened cosine, the verified
 inliers, their spread, the inlier margin over the best other instance verified on the same crop,
-and the colour histogram's agreement. A crop with too few keypoints (small or textureless: below
+and the colour histogram's agreement. The calibration map that turns the pair model's probability
+into the emitted one adds the box's 3D plausibility (:func:`size_features`): its size at the
+depth behind it against the instance's size at enrollment, or, without an enrolled size, against
+the sizes an object a hand moves can have. A crop with too few keypoints (small or textureless: below
 ``verify_min_keypoints`` or a short side under ``verify_min_side_px``) has nothing to verify: a
 second model without the local-feature terms scores it, and the detection says so (``det_conf``
 0 instead of 1).
@@ -32,6 +35,8 @@ from egograph.frontend.encoder import as_rgb
 # the features of one (proposal, instance) pair, in the order of the stored coefficients
 FEATURES = ("cosine", "cosine_margin", "whitened", "log_inliers", "spread", "inlier_margin", "colour")
 FALLBACK_FEATURES = ("cosine", "cosine_margin", "whitened", "colour")
+# the calibration map's 3D-plausibility terms (size_features), after [bias, logit(p), textured]
+SIZE_FEATURES = ("no_depth", "size_ratio", "has_ratio", "size_outside")
 
 
 @dataclass
@@ -169,16 +174,38 @@ def probability(x: np.ndarray, coef) -> np.ndarray:
     return 1.0 / (1.0 + np.exp(-np.clip(z, -40, 40)))
 
 
-def calibrate(p: np.ndarray, textured_: np.ndarray, coef) -> np.ndarray:
-    """The emitted probability: the pair model's ``p`` mapped by the calibration ``coef`` = [a, b, c]
-    as ``1 / (1 + exp(-(a + b logit(p) + c textured)))``. The pair model is fitted on every shortlisted
-    pair; the detections are each instance's most probable proposal, a selection on which a model
-    fitted on few true pairs runs over- or under-confident, so the map is fitted on those candidates
-    (``tools/fit_verify.py``); [0, 1, 0] is the identity. ``b`` > 0 keeps the order among crops alike
-    in ``textured_``."""
+def size_features(size_m, enrolled_m, size_range_m) -> np.ndarray:
+    """The calibration map's 3D-plausibility terms (N, len(SIZE_FEATURES)) of boxes whose size at
+    the depth behind them is ``size_m`` (metres, NaN without depth) for instances enrolled at
+    ``enrolled_m`` (metres, NaN when the enrollment box had no depth; MVPE photos have none):
+    ``no_depth`` 1 without a size; ``size_ratio`` |log(size / enrolled)| capped at 2 (0 when
+    either is missing); ``has_ratio`` 1 when both are known; ``size_outside`` how far (in log
+    units) the size lies outside ``size_range_m`` = (low, high), 0 without depth. A wrong box is
+    often a patch of clutter, a handle or a shelf, whose size at its depth no instance has."""
+    s, e = np.broadcast_arrays(np.asarray(size_m, np.float64), np.asarray(enrolled_m, np.float64))
+    has = np.isfinite(s) & (s > 0)
+    both = has & np.isfinite(e) & (e > 0)
+    safe_s = np.where(has, s, 1.0)
+    ratio = np.where(both, np.minimum(np.abs(np.log(safe_s / np.where(both, e, 1.0))), 2.0), 0.0)
+    lo, hi = (float(v) for v in size_range_m)
+    outside = np.where(has, np.maximum(0.0, np.maximum(np.log(lo / safe_s), np.log(safe_s / hi))), 0.0)
+    return np.stack([~has, ratio, both, outside], axis=-1).astype(np.float64)
+
+
+def calibrate(p: np.ndarray, textured_: np.ndarray, coef, size_x: np.ndarray | None = None) -> np.ndarray:
+    """The emitted probability: the pair model's ``p`` mapped by the calibration ``coef`` =
+    [a, b, c, d...] as ``1 / (1 + exp(-(a + b logit(p) + c textured + d . size_x)))``, ``size_x``
+    the 3D-plausibility terms of :func:`size_features` (``...`` x len(SIZE_FEATURES); None: no
+    depth terms, ``coef``'s ``d`` ignored). The pair model is fitted on every shortlisted pair;
+    the detections are each instance's most probable proposal, a selection on which a model
+    fitted on few true pairs runs over- or under-confident, so the map is fitted on those
+    candidates (``tools/fit_verify.py``); [0, 1, 0, 0, ...] is the identity. ``b`` > 0 keeps the
+    order among crops alike in ``textured_`` and size."""
     q = np.clip(np.asarray(p, np.float64), 1e-9, 1 - 1e-9)
     c = np.asarray(coef, np.float64)
     z = c[0] + c[1] * np.log(q / (1 - q)) + c[2] * np.asarray(textured_, np.float64)
+    if size_x is not None and len(c) > 3:
+        z = z + np.asarray(size_x, np.float64) @ c[3:]
     return 1.0 / (1.0 + np.exp(-np.clip(z, -40, 40)))
 
 

@@ -53,6 +53,8 @@ class DetectReport:
     names: list[str] = field(default_factory=list)
     adaptation: object = None    # the head used (egograph.steps.adapt.Adaptation), if adapted
     stored_from: str | None = None   # proposals and embeddings read from this file (the encoder not run)
+    enrolled_size_m: dict[int, float] = field(default_factory=dict)   # instance -> its size at enrollment (verification)
+    size_note: str = ""          # why the verification scored boxes without their size at depth
 
     def name(self, inst: int) -> str:
         return self.names[inst] if inst < len(self.names) else str(inst)
@@ -72,6 +74,14 @@ class DetectReport:
                              f"({100 * n / max(self.frames, 1):.0f} %), {self.enrolled[inst]} enrollment views")
             else:
                 lines.append(f"  {inst} {self.name(inst)}: not enrolled ({': '.join(self.not_enrolled[inst])})")
+        if self.enrolled_size_m:
+            known = {k: v for k, v in self.enrolled_size_m.items() if np.isfinite(v)}
+            lines.append(f"  sizes at enrollment (verification's 3D plausibility): {len(known)} of "
+                         f"{len(self.enrolled_size_m)} instances had depth behind their box"
+                         + (" (" + ", ".join(f"{k} {100 * v:.0f} cm" for k, v in sorted(known.items())) + ")"
+                            if known else ""))
+        if self.size_note:
+            lines.append(f"  {self.size_note}")
         if self.adaptation is not None:
             lines.append(self.adaptation.summary())
         if self.skipped_frames:
@@ -84,9 +94,10 @@ class DetectReport:
 
 
 def enroll_svoe(rec: Recording, encoder, cfg, report: DetectReport, n_labels: int = 0,
-                images: dict | None = None) -> dict[int, np.ndarray]:
+                images: dict | None = None, boxes: dict | None = None) -> dict[int, np.ndarray]:
     """Views of each instance's ``svoe.txt`` box (see :func:`egograph.frontend.matching.svoe_views`);
-    ``images``, when given, receives each instance's view crops (RGB) for verification."""
+    ``images``, when given, receives each instance's view crops (RGB) for verification, ``boxes``
+    each instance's (PV frame index, box clipped to the image)."""
     from egograph.frontend.matching import svoe_views
     from egograph.io.annotations import load_annotations
     from egograph.steps.recording import require_svoe
@@ -117,6 +128,8 @@ def enroll_svoe(rec: Recording, encoder, cfg, report: DetectReport, n_labels: in
         views[e.instance] = encoder.embed(crops)
         if images is not None:
             images[e.instance] = crops
+        if boxes is not None:
+            boxes[e.instance] = (i, (x1, y1, x2, y2))
     for inst in range(n_labels):
         if inst not in views and inst not in report.not_enrolled:
             report.not_enrolled[inst] = (str(path), "no box for this instance")
@@ -241,6 +254,53 @@ def frame_text(rows: list[tuple[int, tuple, float, float]]) -> str:
                    for inst, box, conf, sim in rows)
 
 
+class BoxSizes:
+    """The metric size of PV boxes: the geometric mean of a box's sides (pixels) at the range of the
+    object point behind it (the robust lift, :func:`egograph.geometry.robust_lift.robust_box_point`,
+    which separates the object from what stands behind it), over the PV focal length. Metres; NaN
+    where the frame has no depth or pose, or the box no depth pixels. One frame's depth is read once
+    for all its boxes."""
+
+    def __init__(self, rec: Recording, lift_cfg):
+        from egograph.geometry.robust_lift import robust_context
+
+        self.rec, self.posed = rec, lift_cfg.registration == "posed"
+        self.ctx = robust_context(rec, lift_cfg, [])
+        k = np.asarray(rec.pv.intrinsics, np.float64)
+        self.focal_px = float(np.sqrt(abs(k[0, 0] * k[1, 1])))
+        self._frame: tuple[int, object, object] | None = None
+
+    def __call__(self, i: int, boxes) -> np.ndarray:
+        from egograph.geometry.chains import frame_chains
+        from egograph.geometry.robust_lift import robust_box_point
+
+        boxes = np.asarray(boxes, np.float64).reshape(-1, 4)
+        out = np.full(len(boxes), np.nan)
+        if self._frame is None or self._frame[0] != i:
+            chains = frame_chains(self.rec, i, posed=self.posed)
+            self._frame = (i, chains, self.rec.depth_raw(i) if chains is not None else None)
+        _, chains, raw = self._frame
+        if chains is None or raw is None:
+            return out
+        for n, b in enumerate(boxes):
+            got = robust_box_point(self.ctx, raw, chains, b)
+            if not isinstance(got, str):
+                side = np.sqrt(max(b[2] - b[0], 1.0) * max(b[3] - b[1], 1.0))
+                out[n] = side * float(np.linalg.norm(got[0])) / self.focal_px
+        return out
+
+
+def box_sizes(rec: Recording, lift_cfg, report: DetectReport | None = None) -> BoxSizes | None:
+    """:class:`BoxSizes` of ``rec``, or None (said in ``report``) when the recording has no depth
+    to size boxes with: the verification then scores every box as one without depth."""
+    try:
+        return BoxSizes(rec, lift_cfg)
+    except (EgographError, OSError, ValueError) as err:
+        if report is not None:
+            report.size_note = f"boxes scored without their size at depth: {err}"
+        return None
+
+
 class FrameDetector:
     """Proposals -> crops -> embeddings -> top-1 per instance, for one PV frame at a time; after
     :meth:`use_whitening` a proposal must also pass the whitened gate and the best whitened score
@@ -258,6 +318,8 @@ class FrameDetector:
         self.seen: dict[int, tuple[list, np.ndarray]] = {}              # what this pass embedded (to save)
         self.embedded: dict[int, tuple[list, np.ndarray]] = {}   # frame -> its proposals and embeddings, if done
         self.verifier = None         # verification (egograph.frontend.verify), after use_verification
+        self.sizes: BoxSizes | None = None   # boxes' sizes at depth (the calibration's 3D plausibility)
+        self.enrolled_size: dict[int, float] = {}   # instance -> its size at enrollment, metres (NaN: unknown)
         self.collect: list | None = None   # with a list: every verified pair's features (tools/fit_verify.py)
 
     def use_whitening(self, whitening) -> None:
@@ -269,10 +331,13 @@ class FrameDetector:
             self.white = Enrollment({k: whitening(v) for k, v in self.enrollment.views.items()},
                                     self.enrollment.pooling)
 
-    def use_verification(self, images: dict[int, list[np.ndarray]], enroll: str) -> None:
+    def use_verification(self, images: dict[int, list[np.ndarray]], enroll: str, sizes: BoxSizes | None = None,
+                         enrolled_size: dict[int, float] | None = None) -> None:
         """Verify shortlisted proposals against the enrollment ``images`` (instance -> RGB views) and
         write the calibrated probability (:mod:`egograph.frontend.verify`; ``enroll`` picks the
-        coefficients)."""
+        coefficients); ``sizes`` measures the shortlisted boxes at depth, against ``enrolled_size``
+        (instance -> metres) in the calibration map (None: every box scored as one without depth)."""
+        self.sizes, self.enrolled_size = sizes, dict(enrolled_size or {})
         from egograph.frontend.verify import Verifier
 
         t0 = time.perf_counter()
@@ -290,10 +355,12 @@ class FrameDetector:
         """Verification (see :mod:`egograph.frontend.verify`): per instance its ``verify_top_k``
         proposals by embedding; each verified against the instance's views; the pair model's
         probability; a proposal goes to the instance it is most probably (exclusive); the calibrated
-        probability (:func:`~egograph.frontend.verify.calibrate`); per instance the most probable at
+        probability (:func:`~egograph.frontend.verify.calibrate`, with the boxes' sizes at depth against
+        the instances' at enrollment); per instance the most probable at
         ``verify_threshold`` or more (or, with a guide, the nearest such)."""
         from egograph.frontend.matching import crop, pick
-        from egograph.frontend.verify import calibrate, fallback_rows, feature_rows, owned, probability, textured
+        from egograph.frontend.verify import (calibrate, fallback_rows, feature_rows, owned, probability, size_features,
+                                              textured)
 
         cfg, t0 = self.cfg, time.perf_counter()
         ids = sorted(plain)
@@ -308,6 +375,11 @@ class FrameDetector:
             feats[int(k)] = self.verifier.features(c)
             shapes[int(k)] = c.shape[:2]
             tex_p[k] = textured(feats[int(k)], shapes[int(k)], cfg)
+        size_p = np.full(n_p, np.nan)               # per proposal: its size at depth, metres
+        if self.sizes is not None:
+            ks = np.unique(top)
+            size_p[ks] = self.sizes(i, np.asarray([boxes[k] for k in ks], np.float64))
+        enrolled = np.array([self.enrolled_size.get(inst, np.nan) for inst in ids])
         inl = np.zeros((len(ids), n_p))
         spread = np.zeros((len(ids), n_p))
         colour = np.zeros((len(ids), n_p))
@@ -330,9 +402,10 @@ class FrameDetector:
             if self.collect is not None:
                 for j, k in enumerate(ks):
                     self.collect.append((i, inst, tuple(boxes[k]), bool(tex[j]), x[j], feats[int(k)].n,
-                                         min(shapes[int(k)])))
+                                         min(shapes[int(k)]), float(size_p[k]), float(enrolled[a])))
         mine = owned(prob, listed)
-        cal = np.where(np.isfinite(mine), calibrate(prob, tex_p[None, :], self.coef[2]), -np.inf)
+        size_x = size_features(size_p[None, :], enrolled[:, None], cfg.verify_size_range_m)   # (K, P, 4)
+        cal = np.where(np.isfinite(mine), calibrate(prob, tex_p[None, :], self.coef[2], size_x), -np.inf)
         rows = []
         for a, inst in enumerate(ids):
             k = pick(cal[a], boxes, cfg.verify_threshold, (guides or {}).get(inst), cfg.guidance_radius_px)
@@ -574,15 +647,16 @@ def encoder_id(cfg, encoder_path: str | Path | None) -> dict:
 
 
 def enroll_views(rec: Recording, enroll: str, enc, cfg, report: DetectReport,
-                 images: dict | None = None) -> dict[int, np.ndarray]:
+                 images: dict | None = None, boxes: dict | None = None) -> dict[int, np.ndarray]:
     """The enrollment views of ``enroll`` (svoe | mvpe) embedded by ``enc``, instances that could not
     be enrolled reported (an error under ``--strict``); an error when none could be. ``images``, when
-    given, receives the view images (RGB) per instance."""
+    given, receives the view images (RGB) per instance; ``boxes`` (SVOE) each instance's (PV frame
+    index, box)."""
     require_annotations(rec, "instance labels for detection")
     names = read_labels(rec) or []
     report.names = names
     fcfg = cfg.frontend
-    views = enroll_svoe(rec, enc, fcfg, report, len(names), images) if enroll == "svoe" else \
+    views = enroll_svoe(rec, enc, fcfg, report, len(names), images, boxes) if enroll == "svoe" else \
         enroll_mvpe(rec, enc, fcfg, names, report, images)
     for inst, (where, why) in report.not_enrolled.items():
         report_problem(rec.strict, where, f"instance {inst} ({report.name(inst)}) not enrolled: {why}")
@@ -643,6 +717,8 @@ def detect(rec: Recording, enroll: str, cfg, out: str | Path, *, encoder: str | 
     depends = {"frontend": to_dict(fcfg), "io": to_dict(cfg.io)}
     if frames is not None:   # a sample of the frames is another run than the whole recording
         inputs["frames"] = [int(i) for i in frames]
+    if fcfg.verify in ("all", enroll) and teacher is None:   # the boxes' sizes at depth (robust lift)
+        depends["lift"] = to_dict(cfg.lift)
     if adapt_id:   # unadapted runs keep the fingerprint they had before adaptation existed
         inputs["adapt"] = adapt_id
         depends["adapt"] = {k: v for k, v in to_dict(cfg.adapt).items() if k not in RUN_LEVEL_ADAPT_KNOBS}
@@ -652,7 +728,8 @@ def detect(rec: Recording, enroll: str, cfg, out: str | Path, *, encoder: str | 
     report = DetectReport()
     enc = load_encoder(fcfg, encoder)
     images: dict | None = {} if fcfg.verify in ("all", enroll) and teacher is None else None
-    views = enroll_views(rec, enroll, enc, cfg, report, images)
+    enrolled_at: dict = {}
+    views = enroll_views(rec, enroll, enc, cfg, report, images, enrolled_at)
     enrollment = Enrollment(views, fcfg.mvpe_pooling)
     sources = proposal_sources(rec, fcfg, source_name)
     run = FrameDetector(rec, fcfg, enc, enrollment, sources, report, exclusive=fcfg.exclusive in ("all", enroll))
@@ -664,7 +741,10 @@ def detect(rec: Recording, enroll: str, cfg, out: str | Path, *, encoder: str | 
     if fcfg.whiten in ("all", enroll):
         run.use_whitening(background_whitening(rec, run, fcfg, report))
     if images is not None:
-        run.use_verification(images, enroll)
+        sizes = box_sizes(rec, cfg.lift, report)
+        report.enrolled_size_m = {k: float(sizes(i, [b])[0]) if sizes is not None else float("nan")
+                                  for k, (i, b) in enrolled_at.items()} if enroll == "svoe" else {}
+        run.use_verification(images, enroll, sizes, report.enrolled_size_m)
         run.collect = collect
     adaptation = None
     if teacher is not None:
