@@ -300,12 +300,56 @@ def test_old_digests_are_upgraded_only_where_their_commit_reproduces_them(tmp_pa
     cfg.write_text("graph:\n  min_observations: 4\nfrontend:\n  proposals: geometry+mesh+image\n")
     good, bad = made(old), made("0123456789abcdef")   # bad: made on code its commit does not hold
     assert bench_report.modules_changed(sec, good, repo) is True   # scheme 1: every byte counts
-    assert bench_report.upgrade_digest(good, repo) and good["regeneration"]["digest_scheme"] == 2
+    assert bench_report.upgrade_digest(good, repo)
+    assert good["regeneration"]["digest_scheme"] == bench_report.DIGEST_SCHEME
     assert bench_report.modules_changed(sec, good, repo) is False   # only the front-end block changed
     assert not bench_report.upgrade_digest(bad, repo) and bench_report.modules_changed(sec, bad, repo) is True
     assert not bench_report.upgrade_digest(good, repo)   # already upgraded
     cfg.write_text("graph:\n  min_observations: 6\n")
     assert bench_report.modules_changed(sec, good, repo) is True
+
+
+def test_only_egograph_code_the_tool_can_import_counts(tmp_path):
+    """Scheme 3: a module of egograph counts when the section's tool can import it - at the top, in a
+    function, relatively, through a package's __init__, or as a subprocess named in one of the tool's
+    strings - and not otherwise (a module named only in a docstring or in egograph's own messages
+    does not count); at a commit the same, read through git."""
+    import subprocess
+
+    repo, _ = _config_repo(tmp_path, "graph:\n  min_observations: 4\n")
+    pkg = repo / "egograph" / "track"
+    pkg.mkdir(parents=True)
+    files = {"egograph/__init__.py": "", "egograph/track/__init__.py": "",
+             "egograph/track/graph.py": "from .switchable import between\n",
+             "egograph/track/switchable.py": "def between():\n    return 1\n",
+             "egograph/track/online.py": "def run():\n    from egograph.track.kalman import step\n",
+             "egograph/track/kalman.py": "step = 1\n",
+             "egograph/track/unused.py": '"""Not imported: egograph.track.unused2."""\nMSG = "see egograph.track.unused2"\n',
+             "egograph/track/unused2.py": "x = 1\n", "egograph/track/cli.py": "x = 1\n",
+             "tools/bench_madeup.py": ('"""Runs egograph.track.unused."""\nimport egograph.track.graph\n\n\n'
+                                      "def main():\n    from egograph.track import online\n\n\n"
+                                      "CMD = ['python', '-c', 'from egograph.track.cli import main']\n")}
+    for rel, text in files.items():
+        (repo / rel).write_text(text)
+    paths = ("tools/bench_madeup.py", "egograph/track")
+    assert bench_report.import_closure(["tools/bench_madeup.py"], bench_report._reader(repo, None)) == {
+        "tools/bench_madeup.py", "egograph/__init__.py", "egograph/track/__init__.py", "egograph/track/graph.py",
+        "egograph/track/switchable.py", "egograph/track/online.py", "egograph/track/kalman.py",
+        "egograph/track/cli.py"}
+    d0 = bench_report.modules_digest(paths, repo)
+    for name in ("unused.py", "unused2.py"):
+        (pkg / name).write_text("x = 2\n")
+        assert bench_report.modules_digest(paths, repo) == d0, name
+    assert bench_report.modules_digest(paths, repo, scheme=2) != d0   # scheme 2 counts them
+    for name in ("switchable.py", "kalman.py", "cli.py", "__init__.py"):
+        before = bench_report.modules_digest(paths, repo)
+        (pkg / name).write_text((pkg / name).read_text() + "# changed\n")
+        assert bench_report.modules_digest(paths, repo) != before, name
+    git = ["git", "-C", str(repo), "-c", "user.name=t", "-c", "user.email=t@t"]
+    subprocess.run([*git, "init", "-q"], check=True)
+    subprocess.run([*git, "add", "-A"], check=True)
+    subprocess.run([*git, "commit", "-qm", "c"], check=True)
+    assert bench_report.modules_digest(paths, repo, commit="HEAD") == bench_report.modules_digest(paths, repo)
 
 
 WRITER = """import sys

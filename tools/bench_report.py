@@ -17,12 +17,14 @@ reads the clock or the machine. No figure in docs/benchmarks.md is typed by hand
 from __future__ import annotations
 
 import argparse
+import ast
 import datetime as _dt
 import difflib
 import functools
 import hashlib
 import json
 import os
+import re
 import subprocess
 import sys
 import threading
@@ -480,11 +482,75 @@ DIGEST_SUFFIXES = (".py", ".yaml", ".yml", ".json", ".txt")
 
 
 CONFIG_DIR = "egograph/configs"
-DIGEST_SCHEME = 2
+DIGEST_SCHEME = 3
 """1: every file's bytes. 2: the same for code; a packaged YAML config counts by what the section's
 code can read of it (:func:`config_view`): its parsed content, without comments or layout, and without
 its ``frontend`` block when the section does not exercise ``egograph/frontend``. Under 1 a change of a
-front-end default (``frontend.proposals``) marked every tracker section changed."""
+front-end default (``frontend.proposals``) marked every tracker section changed. 3: as 2, and a Python
+file of egograph counts only when the section's tool can import it
+(:func:`import_closure`). Under 2 a change of the verification in ``egograph/steps/detect.py`` marked
+every section exercising ``egograph/steps`` changed, 29 of them, the tracker benchmarks on simulated
+detections, which never import it, among them."""
+
+# a module named in a string: a subprocess the tool starts (``-m egograph.cli.main``, ``-c "from
+# egograph.cli.main import main; ..."``) runs code the tool's own imports do not reach
+MODULE_IN_STRING = re.compile(r"\begograph(?:\.[A-Za-z_]\w*)+")
+
+
+def _module_file(name: str, read) -> str | None:
+    """The file of module ``name`` (``egograph.x.y``, or a sibling tool ``benchset``) that ``read``
+    (relative path -> bytes | None) finds: the package's ``__init__.py`` or the module's ``.py``."""
+    parts = name.split(".")
+    base = "/".join(parts) if parts[0] == "egograph" else "tools/" + "/".join(parts)
+    for rel in (base + "/__init__.py", base + ".py"):
+        if read(rel) is not None:
+            return rel
+    return None
+
+
+def _imported_names(rel: str, data: bytes) -> set[str]:
+    """Every module file ``rel`` may import: each import statement, those inside functions included,
+    relative ones resolved (egograph.core.provenance's reading, as for the cache keys); and, in a
+    tool, the module names in its strings other than docstrings (the subprocesses it starts;
+    egograph itself starts none, and its docstrings and messages name modules they do not import)."""
+    from egograph.core.provenance import _imports
+
+    try:
+        tree = ast.parse(data.decode())
+    except (SyntaxError, UnicodeDecodeError, ValueError):
+        return set()
+    is_package = rel.endswith("/__init__.py")
+    module = ".".join(Path(rel[:-len("/__init__.py")] if is_package else rel[:-len(".py")]).parts)
+    out = _imports(tree, module, is_package)
+    if rel.startswith("tools/"):
+        docstrings = {id(n.body[0].value) for n in ast.walk(tree)
+                      if isinstance(n, (ast.Module, ast.ClassDef, ast.FunctionDef, ast.AsyncFunctionDef))
+                      and n.body and isinstance(n.body[0], ast.Expr) and isinstance(n.body[0].value, ast.Constant)}
+        out.update(m for n in ast.walk(tree) if isinstance(n, ast.Constant) and isinstance(n.value, str)
+                   and id(n) not in docstrings for m in MODULE_IN_STRING.findall(n.value))
+    return out
+
+
+def import_closure(roots: list[str], read) -> set[str]:
+    """The files (relative paths) the Python files ``roots`` can import, transitively, through
+    egograph and the sibling tools (:func:`_imported_names`; importing ``a.b.c`` runs ``a`` and
+    ``a.b`` too), read by ``read`` (relative path -> bytes | None). Static: a module imported by a
+    name computed at run time is not followed (egograph does so only for optional third-party
+    packages, egograph.core.resources.require)."""
+    seen: set[str] = set()
+    todo = [r for r in roots if read(r) is not None]
+    while todo:
+        rel = todo.pop()
+        if rel in seen:
+            continue
+        seen.add(rel)
+        for name in _imported_names(rel, read(rel)):
+            parts = name.split(".")
+            for k in range(1, len(parts) + 1):
+                f = _module_file(".".join(parts[:k]), read)
+                if f is not None and f not in seen:
+                    todo.append(f)
+    return seen
 
 
 def exercises(paths: tuple[str, ...] | list[str], package: str) -> bool:
@@ -528,19 +594,47 @@ def _commit_files(repo: str, commit: str, rel: str) -> dict[str, bytes] | None:
                               check=True).stdout for n in names} or None
 
 
+def _reader(repo: Path, commit: str | None):
+    """relative path -> bytes | None, of the working tree or of ``commit``."""
+    if commit is None:
+        def read(rel: str) -> bytes | None:
+            p = repo / rel
+            return p.read_bytes() if p.is_file() else None
+        return read
+    return functools.partial(_commit_file, str(repo), commit)
+
+
+@functools.lru_cache(maxsize=None)
+def _commit_file(repo: str, commit: str, rel: str) -> bytes | None:
+    """One file at ``commit`` (None when it has none), read once."""
+    proc = subprocess.run(["git", "-C", repo, "show", f"{commit}:{rel}"], capture_output=True)
+    if proc.returncode == 0:
+        return proc.stdout
+    if subprocess.run(["git", "-C", repo, "cat-file", "-e", commit], capture_output=True).returncode:
+        raise subprocess.CalledProcessError(proc.returncode, proc.args, proc.stdout, proc.stderr)
+    return None
+
+
 def modules_digest(paths: tuple[str, ...] | list[str], repo: Path = REPO, *, scheme: int = DIGEST_SCHEME,
                    commit: str | None = None) -> str:
     """sha256 (16 hex digits) of the files under ``paths`` (folders or files, relative to ``repo``):
-    each file's relative path and content, in sorted order (content: see :data:`DIGEST_SCHEME`); a path
-    that does not exist counts as such. The working tree's files, or those of ``commit``. The same code
+    each file's relative path and content, in sorted order (content and which files count: see
+    :data:`DIGEST_SCHEME`; under 3 the import closure starts from the tools in ``paths``); a path that
+    does not exist counts as such. The working tree's files, or those of ``commit``. The same code
     gives the same digest in every clone."""
     h = hashlib.sha256()
+    closure = None
+    if scheme >= 3:
+        closure = import_closure([p for p in paths if p.startswith("tools/") and p.endswith(".py")],
+                                 _reader(repo, commit))
     for rel in paths:
         files = _tree_files(rel, repo, commit)
         if not files:
             h.update(f"missing {rel}\0".encode())
             continue
         for name, data in files.items():
+            if closure is not None and name.startswith("egograph/") and name.endswith(".py") and name not in closure:
+                continue   # egograph code the section cannot import
             if scheme >= 2 and name.startswith(CONFIG_DIR + "/") and Path(name).suffix in (".yaml", ".yml"):
                 data = config_view(data, paths)
             h.update(name.encode() + b"\0" + data + b"\0")
@@ -548,16 +642,18 @@ def modules_digest(paths: tuple[str, ...] | list[str], repo: Path = REPO, *, sch
 
 
 def upgrade_digest(doc: dict, repo: Path = REPO) -> bool:
-    """Rewrite a record's scheme-1 module digest as scheme 2, when its commit's files give the digest
-    it keeps (so that commit is the code it was made on): True when rewritten. A record whose digest
-    its commit does not reproduce (made on uncommitted code) keeps it, and counts as changed."""
+    """Rewrite a record's module digest in the current scheme (:data:`DIGEST_SCHEME`), when its
+    commit's files give the digest it keeps in its own scheme (so that commit is the code it was made
+    on): True when rewritten. A record whose digest its commit does not reproduce (made on
+    uncommitted code) keeps it, and counts as changed."""
     reg = regeneration_of(doc)
     commit = (doc.get("egograph") or {}).get("commit")
-    if not reg.get("modules_digest") or reg.get("digest_scheme", 1) >= DIGEST_SCHEME or not commit:
+    old = reg.get("digest_scheme", 1)
+    if not reg.get("modules_digest") or old >= DIGEST_SCHEME or not commit:
         return False
     paths = reg.get("modules") or []
     try:
-        if modules_digest(paths, repo, scheme=1, commit=commit) != reg["modules_digest"]:
+        if modules_digest(paths, repo, scheme=old, commit=commit) != reg["modules_digest"]:
             return False
         reg["modules_digest"] = modules_digest(paths, repo, commit=commit)
     except subprocess.CalledProcessError:   # the commit is not in this clone
@@ -993,7 +1089,8 @@ def render(docs: dict[str, dict], sections: tuple[Section, ...] = SECTIONS, rege
            "this page after each: the quick tier on fewer or shorter recordings of the same held-out seeds (its "
            "sizes are stated in each section), the full tier at the sizes below, each section a task on the Dask "
            "cluster at ADDR when one is given. A section whose record is current for the tier and the code (the "
-           "digest of the modules it exercises, kept in the record; a packaged YAML config counts by the settings the "
+           "digest of the modules it exercises, kept in the record: of egograph's code only the modules its tool can "
+           "import, found by reading their import statements; a packaged YAML config by the settings the "
            "section can read: its front-end block only where the front-end is exercised) is not run again, so a killed regeneration "
            "resumes where it stopped. Each section states its tier, the commit its record was made at and "
            "whether that code changed since.", ""]
