@@ -292,3 +292,23 @@ def test_box_sizes_measure_the_instances_at_their_depth(device_rec):
     assert 0.9 <= np.median(ratios) <= 1.4, np.median(ratios)
     sizes._frame = (0, sizes._frame[1], None)   # frame 0 as if its depth image were missing
     assert np.isnan(sizes(0, [boxes[0][0]])).all()
+
+
+def test_svoe_verification_sizes_the_enrollment_and_the_boxes(tiny_rgb_rec, tmp_path):
+    """Under SVOE verification each enrolled instance gets its size at enrollment (metres, the
+    enrollment box at the depth behind it; NaN where the box has none) and the summary prints them;
+    every collected pair carries its box's size and its instance's enrolled size, the same number the
+    report holds."""
+    vcfg = cfg_for(verify="all", verify_threshold=0.05)
+    rec = open_recording(tiny_rgb_rec, vcfg)
+    got: list = []
+    report = detect(rec, "svoe", vcfg, tmp_path / "v", progress=False, collect=got, frames=range(0, len(rec), 3))
+    assert set(report.enrolled_size_m) == set(report.enrolled)
+    known = {k: v for k, v in report.enrolled_size_m.items() if np.isfinite(v)}
+    assert known and all(0.01 <= v <= 0.5 for v in known.values())
+    assert "sizes at enrollment" in report.summary()
+    assert got and all(len(g) == 9 for g in got)
+    for g in got:
+        e = report.enrolled_size_m[g[1]]
+        assert (np.isnan(g[8]) and np.isnan(e)) or g[8] == e
+    assert any(np.isfinite(g[7]) for g in got)
