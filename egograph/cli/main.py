@@ -613,10 +613,10 @@ def print_curves(con, det_set: str, reports: dict) -> None:
 
 # Measured (the demo from pixels, SVOE verified: stop 55, 2026-12-05; the tests: stop 54) from fresh clones on the
 # project's 2-core machine with nothing else running; README.md quotes the same sentence (tests/test_demo.py checks).
-DEMO_TIMES = ('On an idle 2-core machine, bash tools/demo.sh took 8 min 15 s from a fresh clone (creating .venv'
-              " from pip's cache included; rendering 900 device-like PV frames took 2 min 44 s of it and detect "
-              '4 min 4 s, SVOE verified, MVPE on its own proposals; 13 min 13 s of CPU time); bash tools/test.sh '
-              '8 min 31 s from a fresh clone on 2 pytest workers (creating .venv included; 1012 tests; 15 min 5 s '
+DEMO_TIMES = ('On an idle 2-core machine, bash tools/demo.sh took 7 min 57 s from a fresh clone (creating .venv'
+              " from pip's cache included; rendering 900 device-like PV frames took 2 min 38 s of it and detect "
+              '3 min 52 s, SVOE verified, MVPE on its own proposals; 12 min 49 s of CPU time); bash tools/test.sh '
+              '9 min 39 s from a fresh clone on 2 pytest workers (creating .venv included; 1018 tests; 17 min 5 s '
               'of CPU time).')
 
 DEMO_EPILOG = """\
