@@ -513,7 +513,7 @@ def _imported_names(rel: str, data: bytes) -> set[str]:
     relative ones resolved (egograph.core.provenance's reading, as for the cache keys); and, in a
     tool, the module names in its strings other than docstrings (the subprocesses it starts;
     egograph itself starts none, and its docstrings and messages name modules they do not import)."""
-    from egograph.core.provenance import _imports
+    from egograph.core.provenance import _imports, _strip_docstrings
 
     try:
         tree = ast.parse(data.decode())
@@ -523,11 +523,8 @@ def _imported_names(rel: str, data: bytes) -> set[str]:
     module = ".".join(Path(rel[:-len("/__init__.py")] if is_package else rel[:-len(".py")]).parts)
     out = _imports(tree, module, is_package)
     if rel.startswith("tools/"):
-        docstrings = {id(n.body[0].value) for n in ast.walk(tree)
-                      if isinstance(n, (ast.Module, ast.ClassDef, ast.FunctionDef, ast.AsyncFunctionDef))
-                      and n.body and isinstance(n.body[0], ast.Expr) and isinstance(n.body[0].value, ast.Constant)}
-        out.update(m for n in ast.walk(tree) if isinstance(n, ast.Constant) and isinstance(n.value, str)
-                   and id(n) not in docstrings for m in MODULE_IN_STRING.findall(n.value))
+        out.update(m for n in ast.walk(_strip_docstrings(tree)) if isinstance(n, ast.Constant)
+                   and isinstance(n.value, str) for m in MODULE_IN_STRING.findall(n.value))
     return out
 
 
@@ -586,12 +583,12 @@ def _tree_files(rel: str, repo: Path, commit: str | None) -> dict[str, bytes] | 
 @functools.lru_cache(maxsize=None)
 def _commit_files(repo: str, commit: str, rel: str) -> dict[str, bytes] | None:
     """:func:`_tree_files` at ``commit``, read once: a commit's files never change, and both digest
-    schemes of every record made at one commit read the same ones (:func:`upgrade_digest`)."""
+    schemes of every record made at one commit read the same ones (:func:`upgrade_digest`); each
+    file through :func:`_commit_file`, which the import closure reads too."""
     names = subprocess.run(["git", "-C", repo, "ls-tree", "-r", "--name-only", commit, "--", rel],
                            capture_output=True, text=True, check=True).stdout.split()
     names = sorted(n for n in names if Path(n).suffix in DIGEST_SUFFIXES and "__pycache__" not in Path(n).parts)
-    return {n: subprocess.run(["git", "-C", repo, "show", f"{commit}:{n}"], capture_output=True,
-                              check=True).stdout for n in names} or None
+    return {n: _commit_file(repo, commit, n) for n in names} or None
 
 
 def _reader(repo: Path, commit: str | None):
