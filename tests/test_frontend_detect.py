@@ -18,7 +18,7 @@ pytest.importorskip("open3d")
 from egograph.core.config import load_config  # noqa: E402
 from egograph.core.errors import InputError  # noqa: E402
 from egograph.core.resources import default_config  # noqa: E402
-from egograph.steps.detect import detect  # noqa: E402
+from egograph.steps.detect import detect, plausible_sizes  # noqa: E402
 from egograph.steps.recording import open_recording  # noqa: E402
 from egograph.steps.settings import EgographConfig  # noqa: E402
 from egograph.synth.truth import detections_against_truth, own_column  # noqa: E402
@@ -308,7 +308,25 @@ def test_svoe_verification_sizes_the_enrollment_and_the_boxes(tiny_rgb_rec, tmp_
     assert known and all(0.01 <= v <= 0.5 for v in known.values())
     assert "sizes at enrollment" in report.summary()
     assert got and all(len(g) == 9 for g in got)
+    used = plausible_sizes(report.enrolled_size_m, vcfg.frontend.verify_size_range_m)
     for g in got:
-        e = report.enrolled_size_m[g[1]]
+        e = used[g[1]]
         assert (np.isnan(g[8]) and np.isnan(e)) or g[8] == e
     assert any(np.isfinite(g[7]) for g in got)
+
+
+def test_an_implausible_size_at_enrollment_is_not_used():
+    """An enrollment box measured outside frontend.verify_size_range_m (the hand in front of the
+    object, the wall behind it) is made unknown for the verification (its boxes are then scored
+    against the range only), and the summary names the instance; sizes at the range's ends are kept."""
+    from egograph.steps.detect import DetectReport, sizes_not_used_note
+
+    measured = {0: 0.03, 1: 0.10, 2: float("nan"), 3: 0.4, 4: 2.0, 5: 0.04}
+    got = plausible_sizes(measured, (0.04, 0.4))
+    assert np.isnan(got[0]) and np.isnan(got[2]) and np.isnan(got[4])
+    assert (got[1], got[3], got[5]) == (0.10, 0.4, 0.04)
+    note = sizes_not_used_note(measured, got, (0.04, 0.4))
+    assert "(4-40 cm)" in note and "enrollment of 0, 4 (" in note      # 2 had no depth: nothing measured
+    assert sizes_not_used_note({1: 0.1}, {1: 0.1}, (0.04, 0.4)) == ""
+    text = DetectReport(enrolled_size_m=measured, size_not_used=note).summary()
+    assert "5 of 6 instances had depth" in text and note in text

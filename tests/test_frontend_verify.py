@@ -21,7 +21,7 @@ from egograph.frontend.encoder import Preprocess, as_rgb  # noqa: E402
 from egograph.frontend.matching import crop  # noqa: E402
 from egograph.frontend.proposals import ImageProposals, integral_lab, iou, objectness  # noqa: E402
 from egograph.frontend.verify import (FEATURES, Verifier, calibrate, expected_calibration_error, size_features,  # noqa: E402
-                                      fallback_rows, feature_rows, probability, textured)
+                                      fallback_rows, feature_rows, probability, textured, view_set)
 
 # objects of the left view (x1, y1, x2, y2; pixels of the 741 x 500 image), each with texture
 OBJECTS = {"oil bottle": (395, 50, 425, 98), "headlight": (505, 92, 568, 192), "front wheel": (505, 285, 690, 455),
@@ -107,6 +107,38 @@ def test_verification_finds_the_object_in_the_other_view_and_rejects_every_other
     else:
         assert tex[0] and p[0] >= cfg.verify_threshold and int(np.argmax(p)) == 0
     assert (p[1:] < cfg.verify_threshold).all(), f"{name}: {int((p[1:] >= cfg.verify_threshold).sum())} others pass"
+
+
+def test_a_crop_is_matched_against_all_views_at_once_as_against_each(pair):
+    """The ratio test against an instance's views stacked (one brute-force search) keeps, view by
+    view, exactly the matches OpenCV's BFMatcher keeps per view; ``best`` over the views finds the
+    most inliers ``verify`` finds in any one of them; on two threads (``frontend.threads``) ``map``
+    returns what one thread does, in order."""
+    left, right, _ = pair
+    one, two = Verifier(FrontendConfig(threads=1)), Verifier(FrontendConfig(threads=2))
+    cfg = one.cfg
+    views = [one.features(crop(left, b, cfg.crop_margin)) for b in OBJECTS.values()]
+    vs = view_set(views)
+    assert two.pool is not None and one.pool is None
+    boxes = [tuple(SHRINK * np.asarray(b, float)) for b in OBJECTS.values()] + proposals_around(right, (60, 60, 160, 160))[1:12]
+    crops = two.map(two.features, [crop(right, b, cfg.crop_margin) for b in boxes])
+    assert all(np.array_equal(a.desc, b.desc) for a, b in zip(crops, [one.features(crop(right, b, cfg.crop_margin))
+                                                                       for b in boxes]))
+    bf = cv2.BFMatcher(cv2.NORM_L2)
+    for c in crops:
+        nearest, good = one.ratio_matches(c, vs)
+        for j, view in enumerate(views):
+            want = [(m[0].queryIdx, m[0].trainIdx) for m in bf.knnMatch(view.desc, c.desc, k=2)
+                    if len(m) == 2 and m[0].distance < cfg.verify_ratio * m[1].distance]
+            rows = np.flatnonzero(good[vs.offsets[j]:vs.offsets[j + 1]])
+            assert list(zip(rows.tolist(), nearest[vs.offsets[j] + rows].tolist())) == want
+    got = [one.best(c, vs) for c in crops]
+    assert two.map(two.best, crops, [vs] * len(crops)) == got
+    for c, (n, _, _) in zip(crops, got):
+        each = max(one.verify(c, view)[0] for view in views)
+        assert n == each or n >= cfg.verify_enough
+    assert max(n for n, _, _ in got[:len(OBJECTS)]) >= 15          # the objects themselves verify
+    two.close()
 
 
 def test_a_flat_crop_has_nothing_to_verify():

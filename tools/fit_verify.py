@@ -38,7 +38,6 @@ from pathlib import Path
 import numpy as np
 
 REPO = Path(__file__).resolve().parents[1]
-SIZE_RANGE_M = (0.04, 0.4)   # frontend.verify_size_range_m, set from the configuration in main()
 
 
 def box_hits(box, true_boxes: np.ndarray, visible: np.ndarray) -> np.ndarray:
@@ -80,26 +79,32 @@ def collected_arrays(rec, got: list, rec_id: int) -> dict[str, np.ndarray]:
 
 
 def measure_sizes(d: dict, roots: list, cfg) -> None:
-    """Add ``size`` and ``enrolled`` (metres, as ``egograph detect`` measures them under verification)
-    to pairs collected without them; ``roots``: the recordings in the order of ``d["rec"]``."""
-    from egograph.io.annotations import load_annotations
-    from egograph.steps.detect import BoxSizes
-    from egograph.steps.recording import open_recording, require_svoe
+    """Add ``size`` and ``enrolled`` (metres, as ``egograph detect`` measures them under verification:
+    each box, and each instance's SVOE box, at the depth behind it) to pairs collected without them;
+    ``roots``: the recordings in the order of ``d["rec"]``."""
+    from egograph.steps.detect import BoxSizes, DetectReport, svoe_boxes
+    from egograph.steps.recording import open_recording
 
     d["size"], d["enrolled"] = np.full(len(d["rec"]), np.nan), np.full(len(d["rec"]), np.nan)
     for r, root in enumerate(roots):
         rec = open_recording(root, cfg)
         sizes = BoxSizes(rec, cfg.lift)
-        enrolled = {}
-        for e in load_annotations(rec.annotation_dir, svoe_path=require_svoe(rec)).svoe:
-            if e.instance not in enrolled:   # one enrollment per instance, as enroll_svoe: the first line
-                rgb_shape = rec.pv.shape[:2]
-                b = e.box
-                box = (max(b.x_min, 0), max(b.y_min, 0), min(b.x_max, rgb_shape[1]), min(b.y_max, rgb_shape[0]))
-                enrolled[e.instance] = float(sizes(rec.index_of(e.ts), [box])[0])
+        enrolled = {k: float(sizes(i, [box])[0]) for k, (i, box, _) in svoe_boxes(rec, DetectReport()).items()}
         for n in np.flatnonzero(d["rec"] == r):
             d["size"][n] = sizes(int(d["frame"][n]), [d["box"][n]])[0]
             d["enrolled"][n] = enrolled.get(int(d["instance"][n]), np.nan)
+
+
+def with_size_terms(d: dict, size_range_m) -> dict:
+    """``d`` with ``size_x``, each pair's 3D-plausibility terms (egograph.frontend.verify.size_features)
+    as ``egograph detect`` computes them: an enrolled size outside ``size_range_m`` is unknown
+    (egograph.steps.detect.plausible_sizes)."""
+    from egograph.frontend.verify import size_features
+    from egograph.steps.detect import plausible_sizes
+
+    used = plausible_sizes(dict(enumerate(d["enrolled"].tolist())), size_range_m)
+    return {**d, "size_x": size_features(d["size"], np.array([used[n] for n in range(len(d["enrolled"]))]),
+                                         size_range_m)}
 
 
 def visible_frames(rec, frames) -> int:
@@ -121,10 +126,8 @@ def fit(x: np.ndarray, y: np.ndarray, c: float) -> list[float] | None:
 
 
 def size_terms(d: dict) -> np.ndarray:
-    """The pairs' 3D-plausibility terms (egograph.frontend.verify.size_features)."""
-    from egograph.frontend.verify import size_features
-
-    return size_features(d["size"], d["enrolled"], SIZE_RANGE_M)
+    """The pairs' 3D-plausibility terms (:func:`with_size_terms`)."""
+    return d["size_x"]
 
 
 def pair_probability(d: dict, full, fallback) -> np.ndarray:
@@ -228,8 +231,6 @@ def main() -> None:
 
     cfg = load_config(EgographConfig, default_config(), ["frontend.verify=all", *args.overrides])
     fc = cfg.frontend
-    global SIZE_RANGE_M
-    SIZE_RANGE_M = tuple(fc.verify_size_range_m)
     for det_set in args.sets:
         saved = args.cache / f"fit_verify_{det_set}.npz"
         if args.from_collected:
@@ -260,6 +261,7 @@ def main() -> None:
             d = {k: np.concatenate([p[k] for p in parts]) for k in parts[0]}
             n_visible = np.array(n_visible)
             np.savez(saved, visible=n_visible, **d)
+        d = with_size_terms(d, fc.verify_size_range_m)
         # cross-validation over the recordings
         keep_pair = ((fc.verify_coef_svoe, fc.verify_fallback_svoe) if det_set == "svoe" else
                      (fc.verify_coef_mvpe, fc.verify_fallback_mvpe)) if args.calibration_only else None

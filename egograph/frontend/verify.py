@@ -70,16 +70,59 @@ def colour_histogram(rgb: np.ndarray, bins: tuple[int, int] = (12, 4)) -> np.nda
     return out / max(out.sum(), 1.0)
 
 
+@dataclass
+class ViewSet:
+    """An instance's enrollment views stacked for matching: every view's descriptors in one array
+    (view ``j``'s rows at ``offsets[j]:offsets[j + 1]``), so that a crop is matched against all of
+    them in one product instead of one matcher call per view."""
+
+    views: list[LocalFeatures]
+    desc: np.ndarray               # (sum of the views' keypoints, 128) float32
+    offsets: np.ndarray            # (len(views) + 1,) row offsets
+
+
+def view_set(views: list[LocalFeatures]) -> ViewSet:
+    """``views`` stacked (:class:`ViewSet`)."""
+    desc = np.concatenate([v.desc for v in views] or [np.zeros((0, 128), np.float32)]).astype(np.float32)
+    return ViewSet(list(views), np.ascontiguousarray(desc), np.cumsum([0] + [v.n for v in views]))
+
+
 class Verifier:
     """Local features and geometric verification (see module doc). ``features`` of every
-    enrollment view once, of each shortlisted crop once per frame; :meth:`verify` compares them."""
+    enrollment view once, of each shortlisted crop once per frame; :meth:`best` compares a crop
+    with an instance's views, :meth:`verify` with one view. With ``frontend.threads`` above 1,
+    :meth:`map` runs such calls on that many threads (OpenCV releases the GIL; every call is
+    independent and OpenCV's RANSAC seeds each call alike, so the results do not depend on it)."""
 
     def __init__(self, cfg: FrontendConfig):
-        import cv2
+        import threading
 
         self.cfg = cfg
-        self.sift = cv2.SIFT_create(nfeatures=cfg.verify_max_keypoints, contrastThreshold=cfg.verify_contrast)
-        self.matcher = cv2.BFMatcher(cv2.NORM_L2)
+        self._local = threading.local()       # one SIFT per thread
+        self.pool = None
+        if cfg.threads > 1:
+            from concurrent.futures import ThreadPoolExecutor
+
+            self.pool = ThreadPoolExecutor(cfg.threads, thread_name_prefix="egograph-verify")
+
+    def map(self, fn, *args) -> list:
+        """``[fn(*a) for a in zip(*args)]``, on the pool when there is one (order kept)."""
+        return list(self.pool.map(fn, *args)) if self.pool is not None else list(map(fn, *args))
+
+    def close(self) -> None:
+        """Stop the pool's threads."""
+        if self.pool is not None:
+            self.pool.shutdown()
+            self.pool = None
+
+    def _sift(self):
+        import cv2
+
+        sift = getattr(self._local, "sift", None)
+        if sift is None:
+            sift = self._local.sift = cv2.SIFT_create(nfeatures=self.cfg.verify_max_keypoints,
+                                                      contrastThreshold=self.cfg.verify_contrast)
+        return sift
 
     def features(self, rgb: np.ndarray, order: str = "rgb") -> LocalFeatures:
         """RootSIFT of ``rgb`` (uint8 RGB, or BGR with ``order`` 'bgr'; grey and RGBA converted, anything
@@ -96,7 +139,7 @@ class Verifier:
         grey = cv2.cvtColor(img, cv2.COLOR_RGB2GRAY)
         if self.cfg.verify_stretch:
             grey = stretch(grey)
-        kps, desc = self.sift.detectAndCompute(grey, None)
+        kps, desc = self._sift().detectAndCompute(grey, None)
         if desc is None or not kps:
             xy, desc = np.zeros((0, 2), np.float32), np.zeros((0, 128), np.float32)
         else:
@@ -105,21 +148,30 @@ class Verifier:
             desc = np.sqrt(desc).astype(np.float32)
         return LocalFeatures(xy, desc, img.shape[:2], colour_histogram(img))
 
-    def verify(self, crop: LocalFeatures, view: LocalFeatures) -> tuple[int, float]:
-        """(inliers of a RANSAC homography from ``view`` to ``crop`` after the ratio test, their
-        spread: the square root of their bounding box's share of the crop, 0-1). A homography
-        that folds the view or changes its scale by more than ``verify_max_scale`` counts 0."""
+    def ratio_matches(self, crop: LocalFeatures, views: ViewSet) -> tuple[np.ndarray, np.ndarray]:
+        """Lowe's ratio test of every view keypoint against the crop's: (each view row's nearest
+        crop keypoint, whether it passes: nearest < ``verify_ratio`` x second-nearest L2 distance),
+        OpenCV's brute-force 2-nearest search (``cv2.batchDistance``, which BFMatcher's knnMatch runs)
+        in one call over all views: no per-match Python objects, and no BLAS threads that would
+        spin against the verification's own."""
         import cv2
 
-        if crop.n < 2 or view.n < 2:
-            return 0, 0.0
-        pairs = self.matcher.knnMatch(view.desc, crop.desc, k=2)
-        good = [p[0] for p in pairs if len(p) == 2 and p[0].distance < self.cfg.verify_ratio * p[1].distance]
-        if len(good) < 4:
-            return 0, 0.0
-        src = view.xy[[m.queryIdx for m in good]]
-        dst = crop.xy[[m.trainIdx for m in good]]
-        if len(np.unique(dst.round(0), axis=0)) < 4:
+        if crop.n < 2 or not len(views.desc):
+            return np.zeros(len(views.desc), np.intp), np.zeros(len(views.desc), bool)
+        dist, idx = cv2.batchDistance(views.desc, np.ascontiguousarray(crop.desc, np.float32), cv2.CV_32F,
+                                      normType=cv2.NORM_L2, K=2)
+        return idx[:, 0].astype(np.intp), dist[:, 0] < self.cfg.verify_ratio * dist[:, 1]
+
+    def homography(self, crop: LocalFeatures, view: LocalFeatures, src: np.ndarray, dst: np.ndarray
+                   ) -> tuple[int, float]:
+        """(inliers of a RANSAC homography from the ``view`` points ``src`` to the ``crop`` points
+        ``dst``, the ratio test's matches in view keypoint order; their spread: the square root of
+        their bounding box's share of the crop, 0-1). Fewer than 4 matches (or 4 distinct crop
+        points), or a homography that folds the view or changes its scale by more than
+        ``verify_max_scale``, count 0."""
+        import cv2
+
+        if len(src) < 4 or len(np.unique(dst.round(0), axis=0)) < 4:
             return 0, 0.0
         h, mask = cv2.findHomography(src, dst, cv2.RANSAC, self.cfg.verify_reproj_px, maxIters=500, confidence=0.99)
         if h is None or mask is None:
@@ -137,15 +189,29 @@ class Verifier:
         span = np.ptp(pts, axis=0) / np.maximum(np.array(crop.size[::-1], np.float32), 1.0)
         return n, float(np.sqrt(np.clip(span[0] * span[1], 0.0, 1.0)))
 
-    def best(self, crop: LocalFeatures, views: list[LocalFeatures]) -> tuple[int, float, float]:
-        """(most inliers over ``views``, their spread, best histogram intersection over the views);
-        views after one with ``verify_enough`` inliers are not verified (speed)."""
+    def verify(self, crop: LocalFeatures, view: LocalFeatures) -> tuple[int, float]:
+        """(inliers, spread) of ``view`` against ``crop`` (:meth:`ratio_matches`, :meth:`homography`)."""
+        if crop.n < 2 or view.n < 2:
+            return 0, 0.0
+        nearest, good = self.ratio_matches(crop, view_set([view]))
+        return self.homography(crop, view, view.xy[good], crop.xy[nearest[good]])
+
+    def best(self, crop: LocalFeatures, views: ViewSet | list[LocalFeatures]) -> tuple[int, float, float]:
+        """(most inliers over ``views``, their spread, best histogram intersection over the views),
+        the views in their order; views after one with ``verify_enough`` inliers are not verified,
+        nor one with fewer ratio-test matches than the inliers already found (neither can change
+        the result but the first: speed)."""
+        vs = views if isinstance(views, ViewSet) else view_set(views)
         best_n, best_s, col = 0, 0.0, 0.0
-        for v in views:
+        nearest, good = self.ratio_matches(crop, vs)
+        for j, v in enumerate(vs.views):
             col = max(col, float(np.minimum(crop.hist, v.hist).sum()))
-            if best_n >= self.cfg.verify_enough:
+            if best_n >= self.cfg.verify_enough or crop.n < 2 or v.n < 2:
                 continue
-            n, s = self.verify(crop, v)
+            rows = np.flatnonzero(good[vs.offsets[j]:vs.offsets[j + 1]])
+            if len(rows) < max(best_n, 4):
+                continue
+            n, s = self.homography(crop, v, v.xy[rows], crop.xy[nearest[vs.offsets[j] + rows]])
             if n > best_n or (n == best_n and s > best_s):
                 best_n, best_s = n, s
         return best_n, best_s, col

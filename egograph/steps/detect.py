@@ -16,6 +16,8 @@ x2 y2 det_conf similarity`` (PV pixels; empty without detections), which ``egogr
 
 from __future__ import annotations
 
+import contextlib
+
 import hashlib
 import time
 import warnings
@@ -54,6 +56,7 @@ class DetectReport:
     adaptation: object = None    # the head used (egograph.steps.adapt.Adaptation), if adapted
     stored_from: str | None = None   # proposals and embeddings read from this file (the encoder not run)
     enrolled_size_m: dict[int, float] = field(default_factory=dict)   # instance -> its size at enrollment (verification)
+    size_not_used: str = ""      # the enrolled sizes outside frontend.verify_size_range_m, which the verification ignores
     size_note: str = ""          # why the verification scored boxes without their size at depth
 
     def name(self, inst: int) -> str:
@@ -80,6 +83,8 @@ class DetectReport:
                          f"{len(self.enrolled_size_m)} instances had depth behind their box"
                          + (" (" + ", ".join(f"{k} {100 * v:.0f} cm" for k, v in sorted(known.items())) + ")"
                             if known else ""))
+        if self.size_not_used:
+            lines.append(f"  {self.size_not_used}")
         if self.size_note:
             lines.append(f"  {self.size_note}")
         if self.adaptation is not None:
@@ -93,21 +98,18 @@ class DetectReport:
 # --------------------------------------------------------------------------- enrollment
 
 
-def enroll_svoe(rec: Recording, encoder, cfg, report: DetectReport, n_labels: int = 0,
-                images: dict | None = None, boxes: dict | None = None) -> dict[int, np.ndarray]:
-    """Views of each instance's ``svoe.txt`` box (see :func:`egograph.frontend.matching.svoe_views`);
-    ``images``, when given, receives each instance's view crops (RGB) for verification, ``boxes``
-    each instance's (PV frame index, box clipped to the image)."""
-    from egograph.frontend.matching import svoe_views
+def svoe_boxes(rec: Recording, report: DetectReport) -> dict[int, tuple[int, tuple[int, int, int, int], np.ndarray]]:
+    """Each instance's ``svoe.txt`` box (its first usable line): (PV frame index, box clipped
+    to the image, the frame's RGB); an instance whose box cannot be used is in
+    ``report.not_enrolled`` with the file and why."""
     from egograph.io.annotations import load_annotations
     from egograph.steps.recording import require_svoe
 
     path = require_svoe(rec)
-    ann = load_annotations(rec.annotation_dir, svoe_path=path)
-    views = {}
-    for e in ann.svoe:
-        if e.instance in views:
-            continue   # one enrollment per instance: the first line
+    out: dict = {}
+    for e in load_annotations(rec.annotation_dir, svoe_path=path).svoe:
+        if e.instance in out:
+            continue   # one enrollment per instance: the first usable line
         try:
             i = rec.index_of(e.ts)
         except (KeyError, ValueError, EgographError):
@@ -124,16 +126,51 @@ def enroll_svoe(rec: Recording, encoder, cfg, report: DetectReport, n_labels: in
             report.not_enrolled[e.instance] = (str(path), f"box {b.x_min:g} {b.y_min:g} {b.x_max:g} {b.y_max:g} "
                                                            f"outside its {cols}x{rows} frame {e.ts}")
             continue
-        crops = svoe_views(rgb, (x1, y1, x2, y2), cfg)
-        views[e.instance] = encoder.embed(crops)
+        out[e.instance] = (i, (x1, y1, x2, y2), rgb)
+    return out
+
+
+def enroll_svoe(rec: Recording, encoder, cfg, report: DetectReport, n_labels: int = 0,
+                images: dict | None = None, boxes: dict | None = None) -> dict[int, np.ndarray]:
+    """Views of each instance's ``svoe.txt`` box (:func:`svoe_boxes`; see
+    :func:`egograph.frontend.matching.svoe_views`); ``images``, when given, receives each
+    instance's view crops (RGB) for verification, ``boxes`` each instance's (PV frame index, box
+    clipped to the image)."""
+    from egograph.frontend.matching import svoe_views
+    from egograph.steps.recording import require_svoe
+
+    views = {}
+    for inst, (i, box, rgb) in svoe_boxes(rec, report).items():
+        crops = svoe_views(rgb, box, cfg)
+        views[inst] = encoder.embed(crops)
         if images is not None:
-            images[e.instance] = crops
+            images[inst] = crops
         if boxes is not None:
-            boxes[e.instance] = (i, (x1, y1, x2, y2))
+            boxes[inst] = (i, box)
     for inst in range(n_labels):
         if inst not in views and inst not in report.not_enrolled:
-            report.not_enrolled[inst] = (str(path), "no box for this instance")
+            report.not_enrolled[inst] = (str(require_svoe(rec)), "no box for this instance")
     return views
+
+
+def plausible_sizes(sizes: dict[int, float], size_range_m) -> dict[int, float]:
+    """``sizes`` (instance -> metres at enrollment) with those outside ``size_range_m``
+    (``frontend.verify_size_range_m``) made unknown (NaN): an enrollment box measured at 2 cm or 2 m
+    sized the hand in front of the object or the wall behind it, and a ratio against it would
+    favour boxes of that wrong size (the verification then scores them against the range only)."""
+    lo, hi = (float(v) for v in size_range_m)
+    return {k: (v if lo <= v <= hi else float("nan")) for k, v in sizes.items()}
+
+
+def sizes_not_used_note(measured: dict[int, float], used: dict[int, float], size_range_m) -> str:
+    """The summary's line naming the instances whose measured size at enrollment
+    :func:`plausible_sizes` made unknown ("" when none)."""
+    dropped = sorted(k for k, v in measured.items() if np.isfinite(v) and not np.isfinite(used.get(k, np.nan)))
+    if not dropped:
+        return ""
+    lo, hi = (100 * float(v) for v in size_range_m)
+    return (f"not used, outside frontend.verify_size_range_m ({lo:g}-{hi:g} cm): the size at enrollment of "
+            + ", ".join(map(str, dropped)) + " (their boxes are scored against the range only)")
 
 
 def enroll_mvpe(rec: Recording, encoder, cfg, names: list[str], report: DetectReport,
@@ -337,15 +374,15 @@ class FrameDetector:
         write the calibrated probability (:mod:`egograph.frontend.verify`; ``enroll`` picks the
         coefficients); ``sizes`` measures the shortlisted boxes at depth, against ``enrolled_size``
         (instance -> metres) in the calibration map (None: every box scored as one without depth)."""
-        self.sizes, self.enrolled_size = sizes, dict(enrolled_size or {})
-        from egograph.frontend.verify import Verifier
+        from egograph.frontend.verify import Verifier, view_set
 
+        self.sizes, self.enrolled_size = sizes, dict(enrolled_size or {})
         t0 = time.perf_counter()
         self.verifier = Verifier(self.cfg)
         self.verify_views = {}
         for inst, ims in images.items():
             pick_ = np.unique(np.linspace(0, len(ims) - 1, min(len(ims), self.cfg.verify_max_views)).round().astype(int))
-            self.verify_views[inst] = [self.verifier.features(ims[k]) for k in pick_]
+            self.verify_views[inst] = view_set(self.verifier.map(self.verifier.features, [ims[k] for k in pick_]))
         c = self.cfg   # (pair model, its fallback, calibration map) of the enrollment
         self.coef = (c.verify_coef_svoe, c.verify_fallback_svoe, c.verify_calib_svoe) if enroll == "svoe" else \
             (c.verify_coef_mvpe, c.verify_fallback_mvpe, c.verify_calib_mvpe)
@@ -360,7 +397,7 @@ class FrameDetector:
         ``verify_threshold`` or more (or, with a guide, the nearest such)."""
         from egograph.frontend.matching import crop, pick
         from egograph.frontend.verify import (calibrate, fallback_rows, feature_rows, owned, probability, size_features,
-                                              textured)
+                                              textured, view_set)
 
         cfg, t0 = self.cfg, time.perf_counter()
         ids = sorted(plain)
@@ -368,13 +405,13 @@ class FrameDetector:
         rank = np.stack([white[k] for k in ids]) if white is not None else table
         n_p = table.shape[1]
         top = np.argsort(-rank, axis=1, kind="stable")[:, :cfg.verify_top_k]
-        feats, shapes = {}, {}
         tex_p = np.zeros(n_p, bool)                 # per proposal: scored with its local features
-        for k in np.unique(top):
-            c = crop(rgb, boxes[k], cfg.crop_margin)
-            feats[int(k)] = self.verifier.features(c)
-            shapes[int(k)] = c.shape[:2]
-            tex_p[k] = textured(feats[int(k)], shapes[int(k)], cfg)
+        shortlisted = [int(k) for k in np.unique(top)]
+        crops = [crop(rgb, boxes[k], cfg.crop_margin) for k in shortlisted]
+        feats = dict(zip(shortlisted, self.verifier.map(self.verifier.features, crops)))
+        shapes = {k: c.shape[:2] for k, c in zip(shortlisted, crops)}
+        for k in shortlisted:
+            tex_p[k] = textured(feats[k], shapes[k], cfg)
         size_p = np.full(n_p, np.nan)               # per proposal: its size at depth, metres
         if self.sizes is not None:
             ks = np.unique(top)
@@ -383,9 +420,12 @@ class FrameDetector:
         inl = np.zeros((len(ids), n_p))
         spread = np.zeros((len(ids), n_p))
         colour = np.zeros((len(ids), n_p))
-        for a, inst in enumerate(ids):
-            for k in top[a]:
-                inl[a, k], spread[a, k], colour[a, k] = self.verifier.best(feats[int(k)], self.verify_views.get(inst, []))
+        pairs = [(a, int(k)) for a in range(len(ids)) for k in top[a]]
+        no_views = view_set([])
+        got = self.verifier.map(self.verifier.best, [feats[k] for _, k in pairs],
+                                [self.verify_views.get(ids[a], no_views) for a, _ in pairs])
+        for (a, k), (n_in, spread_ak, colour_ak) in zip(pairs, got):
+            inl[a, k], spread[a, k], colour[a, k] = n_in, spread_ak, colour_ak
         listed = np.zeros((len(ids), n_p), bool)
         listed[np.repeat(np.arange(len(ids)), top.shape[1]), top.ravel()] = True
         prob = np.zeros((len(ids), n_p))
@@ -717,7 +757,8 @@ def detect(rec: Recording, enroll: str, cfg, out: str | Path, *, encoder: str | 
     depends = {"frontend": to_dict(fcfg), "io": to_dict(cfg.io)}
     if frames is not None:   # a sample of the frames is another run than the whole recording
         inputs["frames"] = [int(i) for i in frames]
-    if fcfg.verify in ("all", enroll) and teacher is None:   # the boxes' sizes at depth (robust lift)
+    verifying = fcfg.verify in ("all", enroll) and teacher is None
+    if verifying:   # the boxes' sizes at depth (robust lift)
         depends["lift"] = to_dict(cfg.lift)
     if adapt_id:   # unadapted runs keep the fingerprint they had before adaptation existed
         inputs["adapt"] = adapt_id
@@ -727,7 +768,7 @@ def detect(rec: Recording, enroll: str, cfg, out: str | Path, *, encoder: str | 
         return None
     report = DetectReport()
     enc = load_encoder(fcfg, encoder)
-    images: dict | None = {} if fcfg.verify in ("all", enroll) and teacher is None else None
+    images: dict | None = {} if verifying else None
     enrolled_at: dict = {}
     views = enroll_views(rec, enroll, enc, cfg, report, images, enrolled_at)
     enrollment = Enrollment(views, fcfg.mvpe_pooling)
@@ -740,11 +781,13 @@ def detect(rec: Recording, enroll: str, cfg, out: str | Path, *, encoder: str | 
         report.stored_from = Path(embeddings).name
     if fcfg.whiten in ("all", enroll):
         run.use_whitening(background_whitening(rec, run, fcfg, report))
-    if images is not None:
+    if verifying:
         sizes = box_sizes(rec, cfg.lift, report)
         report.enrolled_size_m = {k: float(sizes(i, [b])[0]) if sizes is not None else float("nan")
-                                  for k, (i, b) in enrolled_at.items()} if enroll == "svoe" else {}
-        run.use_verification(images, enroll, sizes, report.enrolled_size_m)
+                                  for k, (i, b) in enrolled_at.items()}   # SVOE's boxes; MVPE's photos have no depth
+        used = plausible_sizes(report.enrolled_size_m, fcfg.verify_size_range_m)
+        report.size_not_used = sizes_not_used_note(report.enrolled_size_m, used, fcfg.verify_size_range_m)
+        run.use_verification(images, enroll, sizes, used)
         run.collect = collect
     adaptation = None
     if teacher is not None:
@@ -762,7 +805,10 @@ def detect(rec: Recording, enroll: str, cfg, out: str | Path, *, encoder: str | 
 
     # the next PV image is decoded in a thread (OpenCV releases the GIL) while this frame's
     # proposals and encoder run: "read" is only the time spent waiting for it
-    with ThreadPoolExecutor(1) as pool:
+    with ThreadPoolExecutor(1) as pool, contextlib.ExitStack() as stack:
+        if run.verifier is not None:
+            stack.callback(run.verifier.close)
+
         def read(i: int):   # a frame whose proposals are stored needs no image
             return STORED if run.stored is not None and i in run.stored and run.verifier is None else read_pv(rec, i)
 
