@@ -234,7 +234,7 @@ def test_the_module_digest_changes_with_the_code_and_the_page_says_so(tmp_path, 
     path, _ = _record(tmp_path, capsys)
     doc = json.loads(path.read_text())
     doc["regeneration"] = {"tier": "quick", "sizes": sec.size("quick"), "modules": list(sec.paths()),
-                           "modules_digest": d0}
+                           "modules_digest": d0, "digest_scheme": bench_report.DIGEST_SCHEME}
     assert bench_report.modules_changed(sec, doc, repo) is False
     assert bench_report.is_current(sec, doc, "quick", repo) and not bench_report.is_current(sec, doc, "full", repo)
     page = bench_report.render({"bench_madeup": doc}, (sec,), repo=repo)
@@ -343,13 +343,43 @@ def test_only_egograph_code_the_tool_can_import_counts(tmp_path):
     assert bench_report.modules_digest(paths, repo, scheme=2) != d0   # scheme 2 counts them
     for name in ("switchable.py", "kalman.py", "cli.py", "__init__.py"):
         before = bench_report.modules_digest(paths, repo)
-        (pkg / name).write_text((pkg / name).read_text() + "# changed\n")
+        (pkg / name).write_text((pkg / name).read_text() + "CHANGED = 1\n")
         assert bench_report.modules_digest(paths, repo) != before, name
     git = ["git", "-C", str(repo), "-c", "user.name=t", "-c", "user.email=t@t"]
     subprocess.run([*git, "init", "-q"], check=True)
     subprocess.run([*git, "add", "-A"], check=True)
     subprocess.run([*git, "commit", "-qm", "c"], check=True)
     assert bench_report.modules_digest(paths, repo, commit="HEAD") == bench_report.modules_digest(paths, repo)
+
+
+def test_a_docstring_comment_or_layout_edit_changes_no_digest(tmp_path):
+    """Scheme 4: a Python file counts by its syntax tree without docstrings - a docstring, a comment
+    or the layout edited leaves the digest, a changed statement, constant or message changes it (also
+    in the tool itself); scheme 3 counted the bytes. A file that does not parse counts by its bytes."""
+    repo, _ = _config_repo(tmp_path, "graph:\n  min_observations: 4\n")
+    (repo / "egograph" / "track").mkdir(parents=True)
+    mod = repo / "egograph" / "track" / "graph.py"
+    tool = repo / "tools" / "bench_madeup.py"
+    (repo / "egograph" / "__init__.py").write_text("")
+    (repo / "egograph" / "track" / "__init__.py").write_text("")
+    mod.write_text('"""Graph."""\n\n\ndef solve(x):\n    """Solve."""\n    return x + 1  # why\n')
+    tool.write_text("import egograph.track.graph\n")
+    paths = ("tools/bench_madeup.py", "egograph/track")
+    d0 = bench_report.modules_digest(paths, repo)
+    s3 = bench_report.modules_digest(paths, repo, scheme=3)
+    mod.write_text('"""Graph, with a better docstring."""\n\n\ndef solve(x):\n    """Solve it: x + 1, '
+                   'metres."""\n    # a comment of its own line\n    return (x\n            + 1)  # why, said better\n')
+    tool.write_text("# the benchmark\nimport egograph.track.graph  # the graph\n")
+    assert bench_report.modules_digest(paths, repo) == d0
+    assert bench_report.modules_digest(paths, repo, scheme=3) != s3
+    for text in ('def solve(x):\n    return x + 2\n', 'def solve(x):\n    return x + 1\n\n\nMSG = "a message"\n'):
+        mod.write_text(text)
+        assert bench_report.modules_digest(paths, repo) != d0, text
+    mod.write_text('"""Graph."""\n\n\ndef solve(x):\n    """Solve."""\n    return x + 1  # why\n')
+    assert bench_report.modules_digest(paths, repo) == d0
+    tool.write_text("import egograph.track.graph\nFRAMES = 3000\n")
+    assert bench_report.modules_digest(paths, repo) != d0
+    assert bench_report.code_view(b"def broken(:\n") == b"def broken(:\n"
 
 
 WRITER = """import sys

@@ -482,7 +482,7 @@ DIGEST_SUFFIXES = (".py", ".yaml", ".yml", ".json", ".txt")
 
 
 CONFIG_DIR = "egograph/configs"
-DIGEST_SCHEME = 3
+DIGEST_SCHEME = 4
 """1: every file's bytes. 2: the same for code; a packaged YAML config counts by what the section's
 code can read of it (:func:`config_view`): its parsed content, without comments or layout, and without
 its ``frontend`` block when the section does not exercise ``egograph/frontend``. Under 1 a change of a
@@ -490,7 +490,23 @@ front-end default (``frontend.proposals``) marked every tracker section changed.
 file of egograph counts only when the section's tool can import it
 (:func:`import_closure`). Under 2 a change of the verification in ``egograph/steps/detect.py`` marked
 every section exercising ``egograph/steps`` changed, 29 of them, the tracker benchmarks on simulated
-detections, which never import it, among them."""
+detections, which never import it, among them. 4: as 3, and a Python file counts by its syntax tree
+without docstrings (:func:`code_view`, the normalised form egograph.core.provenance keys caches
+by): a docstring, comment or layout edit runs nothing, a changed statement or knob text does. Under
+3 correcting a docstring of ``egograph/steps/detect.py`` marked 9 sections changed."""
+
+
+def code_view(data: bytes) -> bytes:
+    """A Python file as the digest counts it (scheme 4): its syntax tree, docstrings removed
+    (``ast.dump``: no comments, no layout); the bytes when it does not parse."""
+    import ast
+
+    from egograph.core.provenance import _strip_docstrings
+
+    try:
+        return ast.dump(_strip_docstrings(ast.parse(data))).encode()
+    except (SyntaxError, ValueError):
+        return data
 
 # a module named in a string: a subprocess the tool starts (``-m egograph.cli.main``, ``-c "from
 # egograph.cli.main import main; ..."``) runs code the tool's own imports do not reach
@@ -634,6 +650,8 @@ def modules_digest(paths: tuple[str, ...] | list[str], repo: Path = REPO, *, sch
                 continue   # egograph code the section cannot import
             if scheme >= 2 and name.startswith(CONFIG_DIR + "/") and Path(name).suffix in (".yaml", ".yml"):
                 data = config_view(data, paths)
+            elif scheme >= 4 and name.endswith(".py"):
+                data = code_view(data)
             h.update(name.encode() + b"\0" + data + b"\0")
     return h.hexdigest()[:16]
 
