@@ -48,7 +48,7 @@ from egograph.cli.common import (
     why_no_intervals,
 )
 from egograph.core.config import load_config
-from egograph.core.errors import ConfigError, EgographError
+from egograph.core.errors import ConfigError, EgographError, InputError
 
 
 def _open(args, cfg):
@@ -466,14 +466,28 @@ def cmd_demo(args) -> int:
     reports = {}
     graph_runs = {}
     results = {}  # row name -> results folder, for the pictures
-    for det_set, (spec, config) in inputs.items():
+    for det_set, (spec, config) in list(inputs.items()):
         cfg = load_config(EgographConfig, config)
+        lifted = {}
         for mode in ("reference", "robust"):
             cfg.lift.mode = mode
             con.rule(f"{3 if pixels else 2}. {det_set.upper()}: lift ({mode}) and track")
-            obs, rep = lift(rec, spec, cfg, out / "observations" / f"{det_set}_{mode}.npz")
+            try:
+                lifted[mode] = lift(rec, spec, cfg, out / "observations" / f"{det_set}_{mode}.npz")
+            except InputError as err:
+                # a short recording's few detections may all lie where the AHAT sees nothing: the
+                # set is said so and left out, as one in which detect found nothing
+                con.print(f"{det_set.upper()}: none of its detections could be lifted to 3D ({mode} lifting: "
+                          f"{err.message}); its trackers are not run", soft_wrap=True)
+                del inputs[det_set]
+                break
+            obs, rep = lifted[mode]
             if rep is not None:  # the headline; `egograph lift` prints why each skipped box was skipped
                 con.print(rep.summary().splitlines()[0])
+        if det_set not in inputs:
+            continue
+        for mode, (obs, _) in lifted.items():
+            cfg.lift.mode = mode
             # The paper's pipeline is kf on reference lifting; the graph runs on robust lifting.
             trackers = ("memory", "kf") if mode == "reference" else ("memory", "kf", "graph", "graph-causal")
             for tracker in trackers:
@@ -484,8 +498,9 @@ def cmd_demo(args) -> int:
                 reports[f"{det_set} {tracker} ({mode} lift)"] = evaluate(rec, result)
                 results[f"{det_set} {tracker} ({mode} lift)"] = res
     if not reports:
-        raise EgographError("the demo found no instance in any PV frame, so there is nothing to track: see the "
-                            f"detect summaries above; `egograph demo --simulated` tracks the simulated detections")
+        raise EgographError("the demo found no instance in any PV frame that could be lifted to 3D, so there is "
+                            "nothing to track: see the detect and lift lines above; `egograph demo --simulated` "
+                            "tracks the simulated detections")
     step = 4 if pixels else 3
     primary = scfg.detections.primary if (scfg.detections.primary, "graph") in graph_runs else \
         next(k for k, t in graph_runs if t == "graph")
