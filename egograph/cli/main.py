@@ -628,10 +628,10 @@ def print_curves(con, det_set: str, reports: dict) -> None:
 
 # Measured (the demo from pixels, SVOE verified: stop 55, 2026-12-05; the tests: stop 54) from fresh clones on the
 # project's 2-core machine with nothing else running; README.md quotes the same sentence (tests/test_demo.py checks).
-DEMO_TIMES = ('On an idle 2-core machine, bash tools/demo.sh took 7 min 57 s from a fresh clone (creating .venv'
-              " from pip's cache included; rendering 900 device-like PV frames took 2 min 38 s of it and detect "
-              '3 min 52 s, SVOE verified, MVPE on its own proposals; 12 min 49 s of CPU time); bash tools/test.sh '
-              '9 min 39 s from a fresh clone on 2 pytest workers (creating .venv included; 1018 tests; 17 min 5 s '
+DEMO_TIMES = ('On an idle 2-core machine, bash tools/demo.sh took 7 min 45 s from a fresh clone (creating .venv'
+              " from pip's cache included; rendering 900 device-like PV frames took 2 min 37 s of it and detect "
+              '3 min 45 s, SVOE verified, MVPE on its own proposals; 12 min 33 s of CPU time); bash tools/test.sh '
+              '9 min 11 s from a fresh clone on 2 pytest workers (creating .venv included; 1021 tests; 16 min 34 s '
               'of CPU time).')
 
 DEMO_EPILOG = """\
