@@ -17,7 +17,6 @@ x2 y2 det_conf similarity`` (PV pixels; empty without detections), which ``egogr
 from __future__ import annotations
 
 import contextlib
-
 import hashlib
 import time
 import warnings
@@ -156,8 +155,9 @@ def enroll_svoe(rec: Recording, encoder, cfg, report: DetectReport, n_labels: in
 def plausible_sizes(sizes: dict[int, float], size_range_m) -> dict[int, float]:
     """``sizes`` (instance -> metres at enrollment) with those outside ``size_range_m``
     (``frontend.verify_size_range_m``) made unknown (NaN): an enrollment box measured at 2 cm or 2 m
-    sized the hand in front of the object or the wall behind it, and a ratio against it would
-    favour boxes of that wrong size (the verification then scores them against the range only)."""
+    measured something other than the object (the depth behind the box was not the object's), and a
+    ratio against it would favour boxes of that wrong size (the verification then scores them against
+    the range only)."""
     lo, hi = (float(v) for v in size_range_m)
     return {k: (v if lo <= v <= hi else float("nan")) for k, v in sizes.items()}
 
