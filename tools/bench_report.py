@@ -1105,7 +1105,8 @@ def render(docs: dict[str, dict], sections: tuple[Section, ...] = SECTIONS, rege
            "sizes are stated in each section), the full tier at the sizes below, each section a task on the Dask "
            "cluster at ADDR when one is given. A section whose record is current for the tier and the code (the "
            "digest of the modules it exercises, kept in the record: of egograph's code only the modules its tool can "
-           "import, found by reading their import statements; a packaged YAML config by the settings the "
+           "import, found by reading their import statements, each by its syntax tree without docstrings, so "
+           "a docstring, comment or layout edit changes nothing; a packaged YAML config by the settings the "
            "section can read: its front-end block only where the front-end is exercised) is not run again, so a killed regeneration "
            "resumes where it stopped. Each section states its tier, the commit its record was made at and "
            "whether that code changed since.", ""]
