@@ -496,11 +496,11 @@ by): a docstring, comment or layout edit runs nothing, a changed statement or kn
 3 correcting a docstring of ``egograph/steps/detect.py`` marked 9 sections changed."""
 
 
+@functools.lru_cache(maxsize=None)
 def code_view(data: bytes) -> bytes:
     """A Python file as the digest counts it (scheme 4): its syntax tree, docstrings removed
-    (``ast.dump``: no comments, no layout); the bytes when it does not parse."""
-    import ast
-
+    (``ast.dump``: no comments, no layout); the bytes when it does not parse. Cached by content: a
+    page render digests every section, twice, over the same files."""
     from egograph.core.provenance import _strip_docstrings
 
     try:
@@ -524,24 +524,26 @@ def _module_file(name: str, read) -> str | None:
     return None
 
 
-def _imported_names(rel: str, data: bytes) -> set[str]:
+@functools.lru_cache(maxsize=None)
+def _imported_names(rel: str, data: bytes) -> frozenset[str]:
     """Every module file ``rel`` may import: each import statement, those inside functions included,
     relative ones resolved (egograph.core.provenance's reading, as for the cache keys); and, in a
     tool, the module names in its strings other than docstrings (the subprocesses it starts;
-    egograph itself starts none, and its docstrings and messages name modules they do not import)."""
+    egograph itself starts none, and its docstrings and messages name modules they do not import).
+    Cached by path and content, as :func:`code_view`."""
     from egograph.core.provenance import _imports, _strip_docstrings
 
     try:
         tree = ast.parse(data.decode())
     except (SyntaxError, UnicodeDecodeError, ValueError):
-        return set()
+        return frozenset()
     is_package = rel.endswith("/__init__.py")
     module = ".".join(Path(rel[:-len("/__init__.py")] if is_package else rel[:-len(".py")]).parts)
     out = _imports(tree, module, is_package)
     if rel.startswith("tools/"):
         out.update(m for n in ast.walk(_strip_docstrings(tree)) if isinstance(n, ast.Constant)
                    and isinstance(n.value, str) for m in MODULE_IN_STRING.findall(n.value))
-    return out
+    return frozenset(out)
 
 
 def import_closure(roots: list[str], read) -> set[str]:
