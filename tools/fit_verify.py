@@ -102,9 +102,8 @@ def with_size_terms(d: dict, size_range_m) -> dict:
     from egograph.frontend.verify import size_features
     from egograph.steps.detect import plausible_sizes
 
-    used = plausible_sizes(dict(enumerate(d["enrolled"].tolist())), size_range_m)
-    return {**d, "size_x": size_features(d["size"], np.array([used[n] for n in range(len(d["enrolled"]))]),
-                                         size_range_m)}
+    used = plausible_sizes(dict(enumerate(d["enrolled"].tolist())), size_range_m)   # in pair order
+    return {**d, "size_x": size_features(d["size"], np.fromiter(used.values(), float, len(used)), size_range_m)}
 
 
 def visible_frames(rec, frames) -> int:
