@@ -22,7 +22,8 @@ from egograph.frontend import effnet  # noqa: E402
 from egograph.frontend.config import FrontendConfig  # noqa: E402
 from egograph.frontend.encoder import OnnxEncoder, Preprocess, load_encoder  # noqa: E402
 from egograph.frontend.matching import Enrollment, autocrop, crop, pick, svoe_views  # noqa: E402
-from egograph.frontend.proposals import ImageProposals, MaskModelProposals, Proposal, iou, nms  # noqa: E402
+from egograph.frontend.proposals import (ImageProposals, MaskModelProposals, Proposal, iou, iou_matrix, nms,  # noqa: E402
+                                         rank_scores)
 
 MILITARY_UNIFORM = 652      # ImageNet class ids
 LAKESIDE, BOATHOUSE, PALACE, CASTLE = 975, 449, 698, 483
@@ -246,6 +247,28 @@ def test_nms_prefers_geometry_and_keeps_separate_boxes():
     assert [p.source for p in kept] == ["geometry", "image"] and kept[1] is c
     assert len(nms([a, b, c], 0.99, 10)) == 3 and len(nms([a, b, c], 0.6, 1)) == 1
     assert iou((0, 0, 10, 10), (5, 0, 15, 10)) == pytest.approx(1 / 3)
+
+
+def test_the_cap_keeps_the_small_object_before_wall_and_range_noise():
+    """Under ``proposal_order: objectness`` the per-frame cap goes first to a small object that
+    stands out from its surround and that depth and the image outline alike, not to a large image
+    segment of plain wall nor to a depth segment of range noise on it; the old source order kept
+    the noise."""
+    img = red_square_image(x0=500, y0=40, side=30)             # a 30 px object on a grey wall
+    obj_geo = Proposal((498, 38, 532, 72), "geometry", 1.0)
+    obj_img = Proposal((500, 40, 530, 70), "image", 0.5)
+    noise = Proposal((100, 200, 160, 260), "geometry", 1.0)    # plain wall: range noise
+    wall = Proposal((0, 100, 400, 360), "image", 0.5)          # a large segment of the wall
+    props = [noise, wall, obj_img, obj_geo]
+    rank = rank_scores(props, img, FrontendConfig())
+    assert rank[2] > 1.5 and rank[3] > 1.5                     # contrast ~1 and agreement ~0.8
+    assert rank[0] < 0.2 and rank[1] < 0.2
+    kept = nms(props, 0.6, 1, rank)
+    assert len(kept) == 1 and iou(kept[0].box, obj_img.box) > 0.7
+    assert nms(props, 0.6, 1) == [noise]
+    assert rank_scores(props, img, FrontendConfig(proposal_order="source")) is None
+    m = iou_matrix(np.array([p.box for p in props], float), np.array([obj_img.box], float))
+    assert m[:, 0] == pytest.approx([iou(p.box, obj_img.box) for p in props])
 
 
 def test_similarity_pooling_and_pick():

@@ -90,7 +90,7 @@ def test_verification_finds_the_object_in_the_other_view_and_rejects_every_other
     props = proposals_around(right, truth)
     assert len(props) >= 10
     crops = [crop(right, b, cfg.crop_margin) for b in props]
-    ev = [v.best(v.features(c), [view]) for c in crops]
+    ev = [v.best(v.features(c), view_set([view])) for c in crops]
     inliers = np.array([e[0] for e in ev], float)
     assert inliers[0] >= 15 and ev[0][1] >= 0.4            # found, its inliers spread over the crop
     assert inliers[0] >= 1.5 * inliers[1:].max()           # ahead of every other proposal, parts of it included

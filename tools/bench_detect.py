@@ -140,7 +140,7 @@ def proposal_recall(rec, cfg, source_name: str, caps: list[int], step: int) -> d
     instances per band...]``, and under ``"setup"`` the CPU seconds making the sources (the mesh
     segmentation). Instances: at least half visible, true box short side >= 24 px;
     covered: some proposal (as ``detect`` makes them: plausible boxes, NMS, the cap) at IoU >= 0.5."""
-    from egograph.frontend.proposals import iou, keep_plausible, nms, proposal_sources
+    from egograph.frontend.proposals import iou, keep_plausible, nms, proposal_sources, rank_scores
     from egograph.steps.detect import read_pv
 
     with np.load(rec.synth_gt_dir / "instances.npz") as gt:
@@ -166,8 +166,9 @@ def proposal_recall(rec, cfg, source_name: str, caps: list[int], step: int) -> d
         band = [next(j for j, (lo, hi) in enumerate(SIDE_BANDS) if lo <= min(b[2] - b[0], b[3] - b[1]) < hi)
                 for b in want]
         np.add.at(band_n, band, 1)
+        rank = rank_scores(props, rgb, cfg.frontend)
         for c in caps:
-            kept = nms(props, cfg.frontend.nms_iou, c)
+            kept = nms(props, cfg.frontend.nms_iou, c, rank)
             count[c] += len(kept)
             covered = [any(iou(b, p.box) >= 0.5 for p in kept) for b in want]
             hit[c] += sum(covered)

@@ -119,8 +119,8 @@ VERIFY_VARIANT = ("--variant verify:frontend.verify=all,frontend.verify_threshol
 DEVICE_RGB = ".cache/bench_fe/device/f300"
 MULTISCALE = "frontend.image_k_scales=[100,300,1000],frontend.image_per_scale=8"
 RECALL_ARGS = ("--recall --recall-step 10 --recall-caps 12 24 48 --runs svoe --skip-vit --cache .cache/bench_fe/models "
-               "--variant current: --variant no-mesh:frontend.proposals=geometry+image "
-               f"--variant 'no-mesh+multiscale:frontend.proposals=geometry+image,{MULTISCALE}' "
+               "--variant current: --variant source-order:frontend.proposal_order=source "
+               "--variant no-mesh:frontend.proposals=geometry+image "
                f"--variant 'multiscale:{MULTISCALE}'")
 STRONG_POSE_ERROR = ("--synth-set pose_error.drift_trans=0.006 --synth-set pose_error.drift_rot=0.1 "
                      "--synth-set pose_error.jump_rate=0.3 --synth-set 'pose_error.jump_trans=[0.04,0.1]'")
@@ -300,9 +300,11 @@ SECTIONS: tuple[Section, ...] = (
             "that a proposal covers at IoU >= 0.5, against the proposals per frame, at `detect`'s per-frame cap "
             "(`frontend.max_proposals`: 12, the default, 24 and 48), by the instance's size in the frame, on the "
             "held-out device-world RGB recordings (every 10th frame). Variants: the current default "
-            "(`geometry+mesh+image` since stop 55), without the objects standing in the scene mesh "
-            "(`geometry+image`, the default before), that with the multi-scale image segments "
-            "(`image_k_scales=[100,300,1000]`, 8 a scale), and the default with them.",
+            "(`geometry+mesh+image` since stop 55, the cap filled by objectness and agreement between the "
+            "sources since stop 58), the cap filled source by source as before stop 58 "
+            "(`proposal_order=source`: geometry, mesh, image), without the objects standing in the scene mesh "
+            "(`geometry+image`), and the default with multi-scale image segments "
+            "(`image_k_scales=[100,300,1000]`, 8 a scale).",
             f"{PY} tools/bench_detect.py --rec {DEVICE_RGB}/seed21 {DEVICE_RGB}/seed22 {DEVICE_RGB}/seed23 "
             f"{DEVICE_RGB}/seed24 {DEVICE_RGB}/seed25 {DEVICE_RGB}/seed26 {RECALL_ARGS} --json-tag recall",
             quick=f"{PY} tools/bench_detect.py --rec {DEVICE_RGB}/seed21 {RECALL_ARGS} --json-tag recall",

@@ -124,6 +124,33 @@ def fit(x: np.ndarray, y: np.ndarray, c: float) -> list[float] | None:
     return [round(float(m.intercept_[0]), 4), *(round(float(w), 4) for w in m.coef_[0])]
 
 
+def fit_monotone(x: np.ndarray, y: np.ndarray, c: float) -> list[float] | None:
+    """:func:`fit` with every weight >= 0 (the bias free): the same objective as scikit-learn's
+    (``c`` x the summed log loss + half the squared weights), minimised by L-BFGS-B under bounds.
+    Why: each pair feature (a similarity, a margin, inliers, their spread, colour) can only speak
+    for the instance. Fitted freely on the renderer's pairs, the SVOE model of stop 58 weighted the
+    inliers' spread and margin negatively and the cosine too: on a real photograph pair
+    (tests/test_frontend_verify.py) it then ranked a clutter crop above the object verified with
+    dozens of inliers."""
+    from scipy.optimize import minimize
+
+    if len(np.unique(y)) < 2:
+        return None
+    x, y = np.asarray(x, np.float64), np.asarray(y, np.float64)
+
+    def loss(w):
+        z = w[0] + x @ w[1:]
+        p = 1.0 / (1.0 + np.exp(-z))
+        nll = np.sum(np.logaddexp(0.0, z) - y * z)
+        g = p - y
+        return c * nll + 0.5 * w[1:] @ w[1:], np.concatenate([[c * g.sum()], c * (x.T @ g) + w[1:]])
+
+    w0 = np.zeros(x.shape[1] + 1)
+    res = minimize(loss, w0, jac=True, method="L-BFGS-B", bounds=[(None, None)] + [(0.0, None)] * x.shape[1],
+                   options={"maxiter": 5000})
+    return [round(float(v), 4) for v in res.x]
+
+
 def size_terms(d: dict) -> np.ndarray:
     """The pairs' 3D-plausibility terms (:func:`with_size_terms`)."""
     return d["size_x"]
@@ -161,9 +188,10 @@ def candidates(d: dict, score: np.ndarray) -> np.ndarray:
     return np.array(sorted(out), np.int64)
 
 
-def fit_stages(d: dict, top_k: int, c: float, pair_model=None):
-    """(pair model full, fallback, calibration map) fitted on the pairs of ``d`` within ``top_k``;
-    with ``pair_model`` (full, fallback) given, only the calibration map is fitted."""
+def fit_stages(d: dict, top_k: int, c: float, pair_model=None, monotone: bool = True):
+    """(pair model full, fallback, calibration map) fitted on the pairs of ``d`` within ``top_k``
+    (the pair model's weights non-negative with ``monotone``, :func:`fit_monotone`); with
+    ``pair_model`` (full, fallback) given, only the calibration map is fitted."""
     from egograph.frontend.verify import fallback_rows
 
     s = {k: v[d["rank"] < top_k] for k, v in d.items()}
@@ -171,8 +199,9 @@ def fit_stages(d: dict, top_k: int, c: float, pair_model=None):
     if pair_model is not None:
         full, fb = pair_model
     else:
-        full = fit(s["x"][t], s["own"][t], c)
-        fb = fit(fallback_rows(s["x"]), s["own"], c)
+        pair_fit = fit_monotone if monotone else fit
+        full = pair_fit(s["x"][t], s["own"][t], c)
+        fb = pair_fit(fallback_rows(s["x"]), s["own"], c)
     if fb is None:
         raise SystemExit(f"only one label among {len(t)} shortlisted pairs: nothing to fit")
     p = pair_probability(s, full, fb)
@@ -212,6 +241,8 @@ def main() -> None:
     ap.add_argument("--sets", nargs="+", default=["svoe", "mvpe"], choices=["svoe", "mvpe"])
     ap.add_argument("--stride", type=int, default=1, help="every this many PV frames (the machine is shared)")
     ap.add_argument("--c", type=float, default=1.0, help="inverse L2 regularisation strength of the pair model")
+    ap.add_argument("--signed", action="store_true",
+                    help="let the pair model's weights take either sign (before stop 58; default: non-negative)")
     ap.add_argument("--calibration-only", action="store_true",
                     help="keep the configured pair model (verify_coef_*, verify_fallback_*), fit the "
                          "calibration map only")
@@ -269,7 +300,7 @@ def main() -> None:
         for r in recs:
             train = {k: v[d["rec"] != r] for k, v in d.items()}
             test = {k: v[d["rec"] == r] for k, v in d.items()}
-            full, fb, calib, _ = fit_stages(train, fc.verify_top_k, args.c, keep_pair)
+            full, fb, calib, _ = fit_stages(train, fc.verify_top_k, args.c, keep_pair, not args.signed)
             test = {k: v[test["rank"] < fc.verify_top_k] for k, v in test.items()}
             keep, q = emitted(test, (full, fb, calib), fc.verify_threshold)
             ps.append(q)
@@ -280,7 +311,7 @@ def main() -> None:
                                                               test["own"][keep]) if o})
             conf += int((test["other"][keep] & ~test["own"][keep]).sum())
         p, y = np.concatenate(ps), np.concatenate(ys)
-        full, fb, calib, s = fit_stages(d, fc.verify_top_k, args.c, keep_pair)
+        full, fb, calib, s = fit_stages(d, fc.verify_top_k, args.c, keep_pair, not args.signed)
         print(f"\n{det_set}: {len(s['own'])} shortlisted pairs (top {fc.verify_top_k}; {int(s['textured'].sum())} with "
               f"keypoints), {s['own'].mean():.3f} true; {int(n_visible.sum())} visible instance-frames")
         print(f"  cross-validated over {len(recs)} recordings at verify_threshold {fc.verify_threshold}: {n_emit} "

@@ -479,12 +479,13 @@ def cmd_demo(args) -> int:
                 # set is said so and left out, as one in which detect found nothing
                 con.print(f"{det_set.upper()}: none of its detections could be lifted to 3D ({mode} lifting: "
                           f"{err.message}); its trackers are not run", soft_wrap=True)
-                del inputs[det_set]
+                lifted = None
                 break
-            obs, rep = lifted[mode]
+            rep = lifted[mode][1]
             if rep is not None:  # the headline; `egograph lift` prints why each skipped box was skipped
                 con.print(rep.summary().splitlines()[0])
-        if det_set not in inputs:
+        if lifted is None:
+            del inputs[det_set]
             continue
         for mode, (obs, _) in lifted.items():
             cfg.lift.mode = mode

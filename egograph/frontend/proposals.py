@@ -71,10 +71,15 @@ def keep_plausible(props: list[Proposal], shape: tuple[int, int], cfg: FrontendC
     return out
 
 
-def nms(props: list[Proposal], iou_max: float, limit: int) -> list[Proposal]:
-    """Greedy non-maximum suppression: geometry first, then mesh, mask and image proposals, larger
-    confidence then larger area first; a box overlapping a kept one by more than ``iou_max`` goes."""
-    order = sorted(props, key=lambda p: (SOURCE_RANK.get(p.source, 9), -p.conf, -p.area))
+def nms(props: list[Proposal], iou_max: float, limit: int, rank: np.ndarray | None = None) -> list[Proposal]:
+    """Greedy non-maximum suppression, at most ``limit`` kept: higher ``rank`` first (one per
+    proposal, :func:`rank_scores`; ties keep the list's order), or without it geometry first, then
+    mesh, mask and image proposals, larger confidence then larger area first; a box overlapping a
+    kept one by more than ``iou_max`` goes."""
+    if rank is None:
+        order = sorted(props, key=lambda p: (SOURCE_RANK.get(p.source, 9), -p.conf, -p.area))
+    else:
+        order = [props[k] for k in np.argsort(-np.asarray(rank, np.float64), kind="stable")]
     kept: list[Proposal] = []
     for p in order:
         if all(iou(p.box, k.box) <= iou_max for k in kept):
@@ -82,6 +87,39 @@ def nms(props: list[Proposal], iou_max: float, limit: int) -> list[Proposal]:
             if len(kept) >= limit:
                 break
     return kept
+
+
+def iou_matrix(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """IoU of every box of ``a`` (N, 4) with every box of ``b`` (M, 4) -> (N, M)."""
+    ix = np.clip(np.minimum(a[:, None, 2], b[None, :, 2]) - np.maximum(a[:, None, 0], b[None, :, 0]), 0, None)
+    iy = np.clip(np.minimum(a[:, None, 3], b[None, :, 3]) - np.maximum(a[:, None, 1], b[None, :, 1]), 0, None)
+    inter = ix * iy
+    area_a = (a[:, 2] - a[:, 0]) * (a[:, 3] - a[:, 1])
+    area_b = (b[:, 2] - b[:, 0]) * (b[:, 3] - b[:, 1])
+    union = area_a[:, None] + area_b[None, :] - inter
+    return np.divide(inter, union, out=np.zeros_like(inter), where=union > 0)
+
+
+def rank_scores(props: list[Proposal], rgb: np.ndarray, cfg: FrontendConfig) -> np.ndarray | None:
+    """Each proposal's place in the per-frame cap under ``cfg.proposal_order`` (None: the source
+    order of :func:`nms`). ``objectness``: the box's :func:`objectness` on the frame downscaled by
+    ``image_scale`` (0-1) plus its agreement with the other sources, the largest IoU with a box
+    another source proposed (0-1). Why both: a depth segment of range noise or a segment of a
+    wall's shading stands out little from its surround and no other source outlines it, while an
+    object on a table does both; neither term grows with the box (means, ratios), so a small object
+    competes with a large one for the cap."""
+    import cv2
+
+    if cfg.proposal_order == "source" or not props:
+        return None
+    box = np.array([p.box for p in props], np.float64)
+    s = cfg.image_scale
+    small = cv2.resize(rgb, None, fx=s, fy=s, interpolation=cv2.INTER_AREA)
+    rows, cols = small.shape[:2]
+    scaled = np.clip(box * s, 0, [cols, rows, cols, rows])
+    src = np.array([p.source for p in props])
+    agree = np.where(src[:, None] != src[None, :], iou_matrix(box, box), 0.0).max(axis=1)
+    return objectness(integral_lab(small), scaled) + agree
 
 
 # --------------------------------------------------------------------------- geometry

@@ -196,17 +196,16 @@ class Verifier:
         nearest, good = self.ratio_matches(crop, view_set([view]))
         return self.homography(crop, view, view.xy[good], crop.xy[nearest[good]])
 
-    def best(self, crop: LocalFeatures, views: ViewSet | list[LocalFeatures]) -> tuple[int, float, float]:
-        """(most inliers over ``views``, their spread, best histogram intersection over the views),
-        the views in their order; views after one with ``verify_enough`` inliers are not verified,
-        nor one with fewer ratio-test matches than the inliers already found (neither can change
-        the result but the first: speed)."""
-        vs = views if isinstance(views, ViewSet) else view_set(views)
+    def best(self, crop: LocalFeatures, vs: ViewSet) -> tuple[int, float, float]:
+        """(most inliers over the views of ``vs``, their spread, best histogram intersection over the
+        views), the views in their order; views after one with ``verify_enough`` inliers are not
+        verified, nor one with fewer ratio-test matches than the inliers already found, or than the
+        4 a homography needs (neither can change the result but the first: speed)."""
         best_n, best_s, col = 0, 0.0, 0.0
         nearest, good = self.ratio_matches(crop, vs)
         for j, v in enumerate(vs.views):
             col = max(col, float(np.minimum(crop.hist, v.hist).sum()))
-            if best_n >= self.cfg.verify_enough or crop.n < 2 or v.n < 2:
+            if best_n >= self.cfg.verify_enough:
                 continue
             rows = np.flatnonzero(good[vs.offsets[j]:vs.offsets[j + 1]])
             if len(rows) < max(best_n, 4):

@@ -379,7 +379,7 @@ class FrameDetector:
         self.sizes, self.enrolled_size = sizes, dict(enrolled_size or {})
         t0 = time.perf_counter()
         self.verifier = Verifier(self.cfg)
-        self.verify_views = {}
+        self.verify_views, self.no_views = {}, view_set([])   # an instance without views verifies nothing
         for inst, ims in images.items():
             pick_ = np.unique(np.linspace(0, len(ims) - 1, min(len(ims), self.cfg.verify_max_views)).round().astype(int))
             self.verify_views[inst] = view_set(self.verifier.map(self.verifier.features, [ims[k] for k in pick_]))
@@ -397,7 +397,7 @@ class FrameDetector:
         ``verify_threshold`` or more (or, with a guide, the nearest such)."""
         from egograph.frontend.matching import crop, pick
         from egograph.frontend.verify import (calibrate, fallback_rows, feature_rows, owned, probability, size_features,
-                                              textured, view_set)
+                                              textured)
 
         cfg, t0 = self.cfg, time.perf_counter()
         ids = sorted(plain)
@@ -406,7 +406,8 @@ class FrameDetector:
         n_p = table.shape[1]
         top = np.argsort(-rank, axis=1, kind="stable")[:, :cfg.verify_top_k]
         tex_p = np.zeros(n_p, bool)                 # per proposal: scored with its local features
-        shortlisted = [int(k) for k in np.unique(top)]
+        ks_top = np.unique(top)
+        shortlisted = [int(k) for k in ks_top]
         crops = [crop(rgb, boxes[k], cfg.crop_margin) for k in shortlisted]
         feats = dict(zip(shortlisted, self.verifier.map(self.verifier.features, crops)))
         shapes = {k: c.shape[:2] for k, c in zip(shortlisted, crops)}
@@ -414,16 +415,14 @@ class FrameDetector:
             tex_p[k] = textured(feats[k], shapes[k], cfg)
         size_p = np.full(n_p, np.nan)               # per proposal: its size at depth, metres
         if self.sizes is not None:
-            ks = np.unique(top)
-            size_p[ks] = self.sizes(i, np.asarray([boxes[k] for k in ks], np.float64))
+            size_p[ks_top] = self.sizes(i, np.asarray([boxes[k] for k in shortlisted], np.float64))
         enrolled = np.array([self.enrolled_size.get(inst, np.nan) for inst in ids])
         inl = np.zeros((len(ids), n_p))
         spread = np.zeros((len(ids), n_p))
         colour = np.zeros((len(ids), n_p))
         pairs = [(a, int(k)) for a in range(len(ids)) for k in top[a]]
-        no_views = view_set([])
         got = self.verifier.map(self.verifier.best, [feats[k] for _, k in pairs],
-                                [self.verify_views.get(ids[a], no_views) for a, _ in pairs])
+                                [self.verify_views.get(ids[a], self.no_views) for a, _ in pairs])
         for (a, k), (n_in, spread_ak, colour_ak) in zip(pairs, got):
             inl[a, k], spread[a, k], colour[a, k] = n_in, spread_ak, colour_ak
         listed = np.zeros((len(ids), n_p), bool)
@@ -471,14 +470,14 @@ class FrameDetector:
 
     def _embed_proposals(self, i: int, rgb: np.ndarray) -> tuple[list, np.ndarray]:
         from egograph.frontend.matching import crop
-        from egograph.frontend.proposals import keep_plausible, nms
+        from egograph.frontend.proposals import keep_plausible, nms, rank_scores
 
         cfg, sec = self.cfg, self.report.seconds
         t0 = time.perf_counter()
         props = []
         for src in self.sources:
             props += keep_plausible(src(i, rgb), rgb.shape[:2], cfg)
-        props = nms(props, cfg.nms_iou, cfg.max_proposals)
+        props = nms(props, cfg.nms_iou, cfg.max_proposals, rank_scores(props, rgb, cfg))
         t1 = time.perf_counter()
         crops, kept = [], []
         for p in props:
@@ -781,49 +780,50 @@ def detect(rec: Recording, enroll: str, cfg, out: str | Path, *, encoder: str | 
         report.stored_from = Path(embeddings).name
     if fcfg.whiten in ("all", enroll):
         run.use_whitening(background_whitening(rec, run, fcfg, report))
-    if verifying:
-        sizes = box_sizes(rec, cfg.lift, report)
-        report.enrolled_size_m = {k: float(sizes(i, [b])[0]) if sizes is not None else float("nan")
-                                  for k, (i, b) in enrolled_at.items()}   # SVOE's boxes; MVPE's photos have no depth
-        used = plausible_sizes(report.enrolled_size_m, fcfg.verify_size_range_m)
-        report.size_not_used = sizes_not_used_note(report.enrolled_size_m, used, fcfg.verify_size_range_m)
-        run.use_verification(images, enroll, sizes, used)
-        run.collect = collect
-    adaptation = None
-    if teacher is not None:
-        from egograph.steps.adapt import Adaptation, fit_adaptation
-
-        t0 = time.perf_counter()
-        saved = dict(report.seconds)
-        adaptation = teacher if isinstance(teacher, Adaptation) else fit_adaptation(rec, teacher, cfg, enc, views, run, enroll)
-        report.seconds = saved
-        report.seconds["adapt"] = time.perf_counter() - t0
-        report.adaptation = adaptation
-        run.use_head(adaptation.head, cfg.adapt)
-    files: dict[str, str] = {}
-    from concurrent.futures import ThreadPoolExecutor
-
-    # the next PV image is decoded in a thread (OpenCV releases the GIL) while this frame's
-    # proposals and encoder run: "read" is only the time spent waiting for it
-    with ThreadPoolExecutor(1) as pool, contextlib.ExitStack() as stack:
-        if run.verifier is not None:
+    # the verification's threads stop however the run ends (an adaptation or a frame that fails)
+    with contextlib.ExitStack() as stack:
+        if verifying:
+            sizes = box_sizes(rec, cfg.lift, report)
+            report.enrolled_size_m = {k: float(sizes(i, [b])[0]) if sizes is not None else float("nan")
+                                      for k, (i, b) in enrolled_at.items()}   # SVOE's boxes; MVPE's photos have no depth
+            used = plausible_sizes(report.enrolled_size_m, fcfg.verify_size_range_m)
+            report.size_not_used = sizes_not_used_note(report.enrolled_size_m, used, fcfg.verify_size_range_m)
+            run.use_verification(images, enroll, sizes, used)
             stack.callback(run.verifier.close)
+            run.collect = collect
+        adaptation = None
+        if teacher is not None:
+            from egograph.steps.adapt import Adaptation, fit_adaptation
 
-        def read(i: int):   # a frame whose proposals are stored needs no image
-            return STORED if run.stored is not None and i in run.stored and run.verifier is None else read_pv(rec, i)
-
-        todo = list(range(len(rec))) if frames is None else sorted(int(i) for i in frames)
-        if not todo:
-            raise EgographError(f"{rec.seq_dir}: no PV frame to detect in")
-        ahead = pool.submit(read, todo[0])
-        for n, i in enumerate(tqdm(todo, desc=f"detect ({enroll})", unit="frame", disable=not progress, mininterval=1.0)):
-            ts = int(rec.timestamps[i])
             t0 = time.perf_counter()
-            rgb = ahead.result()
-            if n + 1 < len(todo):
-                ahead = pool.submit(read, todo[n + 1])
-            report.seconds["read"] += time.perf_counter() - t0
-            detect_frame(rec, i, ts, rgb, run, guide_world, report, files)
+            saved = dict(report.seconds)
+            adaptation = teacher if isinstance(teacher, Adaptation) else fit_adaptation(rec, teacher, cfg, enc, views, run, enroll)
+            report.seconds = saved
+            report.seconds["adapt"] = time.perf_counter() - t0
+            report.adaptation = adaptation
+            run.use_head(adaptation.head, cfg.adapt)
+        files: dict[str, str] = {}
+        from concurrent.futures import ThreadPoolExecutor
+
+        # the next PV image is decoded in a thread (OpenCV releases the GIL) while this frame's
+        # proposals and encoder run: "read" is only the time spent waiting for it
+        with ThreadPoolExecutor(1) as pool:
+
+            def read(i: int):   # a frame whose proposals are stored needs no image
+                return STORED if run.stored is not None and i in run.stored and run.verifier is None else read_pv(rec, i)
+
+            todo = list(range(len(rec))) if frames is None else sorted(int(i) for i in frames)
+            if not todo:
+                raise EgographError(f"{rec.seq_dir}: no PV frame to detect in")
+            ahead = pool.submit(read, todo[0])
+            for n, i in enumerate(tqdm(todo, desc=f"detect ({enroll})", unit="frame", disable=not progress, mininterval=1.0)):
+                ts = int(rec.timestamps[i])
+                t0 = time.perf_counter()
+                rgb = ahead.result()
+                if n + 1 < len(todo):
+                    ahead = pool.submit(read, todo[n + 1])
+                report.seconds["read"] += time.perf_counter() - t0
+                detect_frame(rec, i, ts, rgb, run, guide_world, report, files)
     if report.frames == 0:
         raise InputError(rec.seq_dir / "pv", f"none of the {len(rec)} PV images could be read (e.g. "
                                              f"{report.skipped_frames[0] if report.skipped_frames else '-'})")
