@@ -627,12 +627,12 @@ def print_curves(con, det_set: str, reports: dict) -> None:
 
 # ------------------------------------------------------------------ parser
 
-# Measured (the demo from pixels, SVOE verified: stop 55, 2026-12-05; the tests: stop 54) from fresh clones on the
+# Measured (the demo from pixels, SVOE verified, and the tests: stop 58, 2026-12-06) from fresh clones on the
 # project's 2-core machine with nothing else running; README.md quotes the same sentence (tests/test_demo.py checks).
-DEMO_TIMES = ('On an idle 2-core machine, bash tools/demo.sh took 7 min 45 s from a fresh clone (creating .venv'
-              " from pip's cache included; rendering 900 device-like PV frames took 2 min 37 s of it and detect "
-              '3 min 45 s, SVOE verified, MVPE on its own proposals; 12 min 33 s of CPU time); bash tools/test.sh '
-              '9 min 11 s from a fresh clone on 2 pytest workers (creating .venv included; 1021 tests; 16 min 34 s '
+DEMO_TIMES = ('On an idle 2-core machine, bash tools/demo.sh took 7 min 31 s from a fresh clone (creating .venv'
+              " from pip's cache included; rendering 900 device-like PV frames took 2 min 31 s of it and detect "
+              '3 min 36 s, SVOE verified, MVPE on its own proposals; 12 min 9 s of CPU time); bash tools/test.sh '
+              '7 min 56 s from a fresh clone on 2 pytest workers (creating .venv included; 1022 tests; 13 min 57 s '
               'of CPU time).')
 
 DEMO_EPILOG = """\
