@@ -133,6 +133,7 @@ def fit_monotone(x: np.ndarray, y: np.ndarray, c: float) -> list[float] | None:
     (tests/test_frontend_verify.py) it then ranked a clutter crop above the object verified with
     dozens of inliers."""
     from scipy.optimize import minimize
+    from scipy.special import expit
 
     if len(np.unique(y)) < 2:
         return None
@@ -140,7 +141,7 @@ def fit_monotone(x: np.ndarray, y: np.ndarray, c: float) -> list[float] | None:
 
     def loss(w):
         z = w[0] + x @ w[1:]
-        p = 1.0 / (1.0 + np.exp(-z))
+        p = expit(z)   # no overflow where the pair is far from the boundary
         nll = np.sum(np.logaddexp(0.0, z) - y * z)
         g = p - y
         return c * nll + 0.5 * w[1:] @ w[1:], np.concatenate([[c * g.sum()], c * (x.T @ g) + w[1:]])
