@@ -2,15 +2,18 @@
 
 from __future__ import annotations
 
+import dataclasses
+from types import SimpleNamespace
+
 import numpy as np
 import pytest
 
 from egograph.core.errors import InputError
 from egograph.core.types import PositionInterval, Prediction, predictions_of
-from egograph.track.config import GraphConfig
+from egograph.track.config import AnswersConfig, GraphConfig
 from egograph.track.graph import graph_tracker
 from egograph.track.intervals import per_frame_predictions, read_intervals_json, write_intervals_json
-from egograph.track.smooth import predictions_to_observations
+from egograph.track.smooth import distinct_sightings, predictions_to_observations, smooth_predictions
 
 T0, FRAME = 133_400_000_000_000_000, 333_333
 TS = T0 + FRAME * np.arange(100, dtype=np.int64)
@@ -64,6 +67,46 @@ def test_smoothing_noisy_per_frame_results_gives_one_interval_per_stand():
     a, b = res.intervals
     assert np.linalg.norm(np.subtract(a.xyz, [1.0, 0.9, 2.0])) < 0.02
     assert abs((a.t_end - T0) / FRAME - 59) <= 2 and abs((b.t_start - T0) / FRAME - 60) <= 2
+
+
+def _memory_like(scatter_m: float, n: int = 900, every: int = 6, seed: int = 0) -> dict:
+    """Per-frame results of a tracker that repeats its last sighting (the memory baseline): one object
+    at a place, sighted every ``every`` frames with ``scatter_m`` metres of noise per axis."""
+    rng = np.random.default_rng(seed)
+    ts = T0 + FRAME * np.arange(n, dtype=np.int64)
+    out, last = {}, None
+    for f, t in enumerate(ts):
+        if f % every == 0:
+            last = tuple(np.array([1.0, 0.9, 2.0]) + scatter_m * rng.standard_normal(3))
+        out[int(t)] = [Prediction(0, last, 0.7)]
+    return out
+
+
+@pytest.mark.parametrize("scatter_m, noisy", [(0.1, True), (0.005, False)])
+def test_smoothing_a_tracker_that_repeats_its_sightings_calibrates_by_their_scatter(scatter_m, noisy):
+    """The memory baseline's copies of its last sighting hold the fitted noise scale at its floor
+    whatever the front-end; the answers' calibration is picked by the scale of the distinct
+    sightings instead: widely scattered sightings take the noisy knots, tight ones the clean. The
+    smoothing itself (the solve's scale, the intervals) is that of every prediction."""
+    n = 1800
+    per_frame = _memory_like(scatter_m, n, every=10)
+    ts = np.array(sorted(per_frame), dtype=np.int64)
+    rec = SimpleNamespace(timestamps=ts, pv_poses=np.tile(np.eye(4), (n, 1, 1)), pv_valid=np.ones(n, bool))
+    obs = predictions_to_observations(per_frame, ts, rec.pv_poses, rec.pv_valid)
+    assert len(distinct_sightings(obs)) == n // 10
+    clean, noisy_conf = 0.2, 0.7   # every answer's confidence under each set of knots and kinds
+    answers = dataclasses.replace(AnswersConfig(), smooth_calibration=[[0.0, clean], [1.0, clean]],
+                                  noisy_smooth_calibration=[[0.0, noisy_conf], [1.0, noisy_conf]],
+                                  smooth_kinds=[clean] * 4, noisy_smooth_kinds=[noisy_conf] * 4)
+    cfg = GraphConfig(negative_evidence=False, answers=answers)
+    res = smooth_predictions(rec, per_frame, cfg)
+    assert res.metadata["noise_scale"] < cfg.answers.noisy_scale          # the copies' scale: the floor
+    assert (res.metadata["calibration_scale"] >= cfg.answers.noisy_scale) == noisy
+    scores = [p.score for t in ts for p in res.answers[int(t)]]
+    assert len(scores) == n and np.allclose(scores, noisy_conf if noisy else clean)
+    plain = graph_tracker(obs, ts, dataclasses.replace(cfg, score_threshold=0.0, alias_rounds=0))
+    spans = [(i.t_start, i.t_end, i.xyz) for i in res.intervals]
+    assert spans == [(i.t_start, i.t_end, i.xyz) for i in plain.intervals]
 
 
 def test_predictions_made_at_once_equal_those_made_one_by_one():

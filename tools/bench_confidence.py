@@ -101,7 +101,8 @@ def run_recording(root: Path, overrides: list[str], lags: list[float], fit: bool
                     sm = smooth_predictions(rec, res.per_frame, cfg.graph)
                     timing["smooth"] = timing.get("smooth", 0) + time.perf_counter() - t
                     rows["memory+graph"] = evaluate(rec, sm).sequences[rec.name].answers
-                    scales[(det_set, "memory+graph")] = sm.metadata["noise_scale"]
+                    # the scale that picked its calibration: that of memory's distinct sightings
+                    scales[(det_set, "memory+graph")] = sm.metadata.get("calibration_scale", sm.metadata["noise_scale"])
         t = time.perf_counter()
         g = graph_with_scene(rec, obs, cfg, causal=False)
         timing["graph"] = timing.get("graph", 0) + time.perf_counter() - t

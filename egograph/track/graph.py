@@ -257,7 +257,7 @@ def _solve_offline(subs, t_frames: np.ndarray, cfg: GraphConfig, negative, suppo
 def graph_tracker(obs: Observations, timestamps: Sequence[int], cfg: GraphConfig, *, causal: bool = False,
                   negative: NegativeFn | None = None, support: SupportFn | None = None,
                   instances: Sequence[int] | None = None, lag_s: float | None = None,
-                  progress: bool = False) -> TrackResult:
+                  progress: bool = False, calibration_scale: float | None = None) -> TrackResult:
     """Run the graph tracker over a recording's observations.
 
     ``timestamps``: the PV frames (ticks); observations must sit on them (``obs.frame`` is
@@ -266,7 +266,9 @@ def graph_tracker(obs: Observations, timestamps: Sequence[int], cfg: GraphConfig
     stand rests on the scene (``NegativeEvidence.supported``). Returns intervals, the per-frame
     predictions in the reference format and metadata for the output JSON. ``causal``: frame by
     frame through :class:`egograph.track.online.OnlineTracker`, each answer using the frames up
-    to ``lag_s`` seconds after it (default ``cfg.lag_s``).
+    to ``lag_s`` seconds after it (default ``cfg.lag_s``). ``calibration_scale``: the detection noise
+    scale that picks the calibration of the offline answers (``graph.answers.noisy_scale``; default
+    the scale fitted here; ``egograph smooth`` passes that of the distinct sightings).
     """
     t_frames = np.asarray(sorted(int(t) for t in timestamps), dtype=np.int64)
     ids = sorted({int(i) for i in obs.instance}) if instances is None else list(instances)
@@ -276,6 +278,8 @@ def graph_tracker(obs: Observations, timestamps: Sequence[int], cfg: GraphConfig
     solutions, scales = _solve_offline(subs, t_frames, cfg, negative, support, progress)
     cfg = dataclasses.replace(cfg, noise=dataclasses.replace(cfg.noise, scale=scales[-1]))
     n_excluded = _places_and_chains(solutions, t_frames, cfg, negative, support)
+    if calibration_scale is None:
+        calibration_scale = scales[-1]
     intervals = sorted((iv for s in solutions for iv in s.intervals), key=lambda iv: (iv.instance, iv.t_start))
     answers = None
     if not cfg.answers.every_frame:
@@ -287,8 +291,8 @@ def graph_tracker(obs: Observations, timestamps: Sequence[int], cfg: GraphConfig
             for s in solutions:
                 if s.answers is not None:
                     xyz, raw, kind = s.answers
-                    predictions(s.instance, xyz, confidences(raw, kind, cfg.answers, "offline", scales[-1]), t_frames,
-                                answers)
+                    predictions(s.instance, xyz, confidences(raw, kind, cfg.answers, "offline", calibration_scale),
+                                t_frames, answers)
             if ids != sorted(ids):  # the solutions come in the order of ``instances``
                 answers = {t: sorted(p, key=lambda q: q.instance) for t, p in answers.items()}
             per_frame = operating_point(answers, cfg.answers)
@@ -306,6 +310,7 @@ def graph_tracker(obs: Observations, timestamps: Sequence[int], cfg: GraphConfig
         "n_places_claimed": n_excluded,
         "noise_scale": scales[-1],
         "noise_scale_rounds": scales,
+        "calibration_scale": calibration_scale,
     }
     if answers is not None:
         metadata["min_confidence"] = cfg.answers.min_confidence

@@ -683,15 +683,16 @@ class OnlineTracker:
         the hand's last position (HAND, raw 0); unseen (standing at a place not among its places),
         the newest detection when it is newer than every inlier of the place of the best stand score
         (that place is then left behind), else that place (UNSEEN; raw, both: that place's share of
-        the frame's scores, halved), else the hand's last position; with no place and no hand, the
-        newest detection (LAST, raw ``LAST_RAW``)."""
+        the frame's scores, halved), else the hand's last position; with no place to stand at (none,
+        or every one claimed by another instance or not held up) and no hand, the newest detection
+        (LAST, raw ``LAST_RAW``)."""
         kind = state_kind(state)
         held = [xyz for t, xyz in st.hands if t <= ts]
         if kind == -1 and held:
             return Prediction(inst, tuple(float(v) for v in held[-1]), HAND_RAW), HAND
-        if kind == -2 and st.places:
-            stands = st.delta[2::2][:len(st.places)]
-            j = int(np.argmax(stands))
+        stands = st.delta[2::2][:len(st.places)] if kind == -2 and st.places else np.zeros(0)
+        j = int(np.argmax(stands)) if len(stands) else -1
+        if j >= 0 and np.isfinite(stands[j]):  # (every place claimed or not held up: none to stand at)
             share = 0.5 * float(np.exp(stands[j] - np.logaddexp.reduce(st.delta)))
             if st.last_xyz is not None and st.last_frame > st.places[j].last_frame:
                 return Prediction(inst, tuple(float(v) for v in st.last_xyz), share), UNSEEN
