@@ -254,6 +254,17 @@ def _solve_offline(subs, t_frames: np.ndarray, cfg: GraphConfig, negative, suppo
     return solutions, scales
 
 
+def offline_noise_scale(obs: Observations, timestamps: Sequence[int], cfg: GraphConfig) -> tuple[float, int]:
+    """The detection noise scale (graph.noise) the offline graph fits on ``obs``, and the number of
+    stand residuals of its last solve that the fit read (:func:`_solve_offline`; no places, chains or
+    answers: what ``egograph smooth`` needs to pick its calibration, egograph.track.smooth)."""
+    t_frames = np.asarray(sorted(int(t) for t in timestamps), dtype=np.int64)
+    ids = sorted({int(i) for i in obs.instance})
+    subs = [(inst, _select_instance_rows(obs, inst, cfg.score_threshold)) for inst in ids]
+    solutions, scales = _solve_offline(subs, t_frames, cfg, None, None, False)
+    return scales[-1], len(stand_residuals(solutions))
+
+
 def graph_tracker(obs: Observations, timestamps: Sequence[int], cfg: GraphConfig, *, causal: bool = False,
                   negative: NegativeFn | None = None, support: SupportFn | None = None,
                   instances: Sequence[int] | None = None, lag_s: float | None = None,

@@ -690,13 +690,14 @@ class OnlineTracker:
         held = [xyz for t, xyz in st.hands if t <= ts]
         if kind == -1 and held:
             return Prediction(inst, tuple(float(v) for v in held[-1]), HAND_RAW), HAND
-        stands = st.delta[2::2][:len(st.places)] if kind == -2 and st.places else np.zeros(0)
-        j = int(np.argmax(stands)) if len(stands) else -1
-        if j >= 0 and np.isfinite(stands[j]):  # (every place claimed or not held up: none to stand at)
-            share = 0.5 * float(np.exp(stands[j] - np.logaddexp.reduce(st.delta)))
-            if st.last_xyz is not None and st.last_frame > st.places[j].last_frame:
-                return Prediction(inst, tuple(float(v) for v in st.last_xyz), share), UNSEEN
-            return Prediction(inst, st.places[j].xyz_tuple, share), UNSEEN
+        if kind == -2 and st.places:
+            stands = st.delta[2::2][:len(st.places)]
+            j = int(np.argmax(stands))
+            if np.isfinite(stands[j]):  # (else every place is claimed or not held up: none to stand at)
+                share = 0.5 * float(np.exp(stands[j] - np.logaddexp.reduce(st.delta)))
+                if st.last_xyz is not None and st.last_frame > st.places[j].last_frame:
+                    return Prediction(inst, tuple(float(v) for v in st.last_xyz), share), UNSEEN
+                return Prediction(inst, st.places[j].xyz_tuple, share), UNSEEN
         if held:
             return Prediction(inst, tuple(float(v) for v in held[-1]), HAND_RAW), HAND
         if st.last_xyz is not None:

@@ -69,17 +69,15 @@ def sightings_scale(obs: Observations, timestamps: Sequence[int], cfg) -> float 
     served answers that were right 41 % (SVOE) and 88 % (MVPE) of the time. The smoothing itself
     keeps the scale fitted on every prediction: solved at the sightings' scale, it lost precision
     and recall on tuning recordings 4-6 (SVOE P/R@0.25 40.6/34.2 -> 37.9/31.2)."""
-    from egograph.track.graph import graph_tracker
-    from egograph.track.noise_scale import stand_residuals
+    from egograph.track.graph import offline_noise_scale
 
     seen = distinct_sightings(obs)
     if not cfg.noise.auto_scale or len(seen) == len(obs) or len(seen) == 0:
         return None
-    res = graph_tracker(seen, timestamps, dataclasses.replace(
-        cfg, answers=dataclasses.replace(cfg.answers, every_frame=False)))
-    if len(stand_residuals(res.solutions)) < cfg.noise.auto_min_residuals:
+    scale, n_residuals = offline_noise_scale(seen, timestamps, cfg)
+    if n_residuals < cfg.noise.auto_min_residuals:
         return None   # (one position per stand, e.g. a tracker answering with intervals: nothing to fit)
-    return float(res.metadata["noise_scale"])
+    return scale
 
 
 def smooth_predictions(rec, per_frame: Mapping[int, Sequence[Prediction]], cfg, causal: bool = False,
