@@ -435,6 +435,38 @@ def test_a_killed_regeneration_resumes_without_running_finished_sections_again(t
     assert calls.read_text().split()[-1] == "bench_bb" and bench_report.load(bench_dir)["bench_bb"]["argv"] == ["full"]
 
 
+def test_a_section_alone_runs_first_the_section_whose_missing_outputs_it_reads(tmp_path, monkeypatch):
+    # a fresh checkout: the records came with the repository, the poses a section reads did not
+    bench_dir, out, made = tmp_path / "bench", tmp_path / "benchmarks.md", tmp_path / "refined"
+    bench_dir.mkdir()
+    writer = tmp_path / "writer.py"
+    writer.write_text(WRITER.format(tools=str(REPO / "tools")))
+    monkeypatch.setattr(bench_report, "LOG_DIR", tmp_path / "logs")
+    calls = tmp_path / "calls.txt"
+
+    def cmd(stem, make=""):
+        return (f"echo {stem} >> {calls} && {make}{sys.executable} {writer} {bench_dir / (stem + '.json')} quick")
+    mods = ("tests/test_bench_report.py",)
+    sections = (bench_report.Section("bench_aa", "A", "a.", cmd("bench_aa", f"mkdir -p {made} && "), modules=mods,
+                                     quick_min=1, outputs=(("quick", str(made)),)),
+                bench_report.Section("bench_bb", "B", "b.", f"test -d {made} && " + cmd("bench_bb"), modules=mods,
+                                     quick_min=2, after=("bench_aa",)),
+                bench_report.Section("bench_cc", "C", "c.", cmd("bench_cc"), modules=mods, quick_min=3))
+    assert [s.stem for s in bench_report.select(["bench_bb"], sections)] == ["bench_aa", "bench_bb"]
+    assert bench_report.regenerate("quick", None, 1, None, bench_dir, out, sections=sections) == 0
+    assert calls.read_text().split() == ["bench_aa", "bench_bb", "bench_cc"]
+    # outputs there: forcing one section runs that one alone
+    assert bench_report.regenerate("quick", ["bench_bb"], 1, None, bench_dir, out, force=True, sections=sections) == 0
+    assert calls.read_text().split()[3:] == ["bench_bb"]
+    # outputs gone: the section they come from runs again first, though its record is current
+    made.rmdir()
+    assert bench_report.regenerate("quick", ["bench_bb"], 1, None, bench_dir, out, force=True, sections=sections) == 0
+    assert calls.read_text().split()[4:] == ["bench_aa", "bench_bb"] and made.is_dir()
+    made.rmdir()
+    assert bench_report.regenerate("quick", ["bench_aa"], 1, None, bench_dir, out, sections=sections) == 0
+    assert calls.read_text().split()[6:] == ["bench_aa"]
+
+
 def test_longest_first_orders_by_the_last_measured_wall_time(tmp_path):
     regen = tmp_path / bench_report.REGEN_DIR_NAME
     regen.mkdir()

@@ -56,7 +56,10 @@ class Section:
     code the benchmark exercises besides its own tool: their digest is kept in the record, and the
     page says whether they changed since. ``quick_min`` is the quick tier's measured or estimated
     cost in minutes on this 2-core machine: regeneration runs cheap sections first. ``after``: the
-    sections whose outputs this one reads (run first)."""
+    sections whose outputs this one reads (run first; a regeneration of this section alone runs them
+    too when they are not current or their outputs are missing). ``outputs``: per tier, the paths
+    (from the repository root) that this section writes for later sections to read; a record whose
+    outputs for the tier are missing (a fresh checkout has no ``.cache``) is run again."""
 
     stem: str
     heading: str
@@ -67,6 +70,7 @@ class Section:
     modules: tuple[str, ...] = ()
     quick_min: float = 5.0
     after: tuple[str, ...] = ()
+    outputs: tuple[tuple[str, str], ...] = ()
 
     @property
     def tool(self) -> str:
@@ -77,6 +81,10 @@ class Section:
 
     def size(self, tier: str) -> str:
         return dict(self.sizes).get(tier, "")
+
+    def missing_outputs(self, tier: str, repo: Path = REPO) -> list[str]:
+        """The paths of ``outputs`` for ``tier`` that do not exist under ``repo``."""
+        return [p for t, p in self.outputs if t == tier and not (repo / p).exists()]
 
     def paths(self) -> tuple[str, ...]:
         """What the module digest covers: the tool, tools/benchset.py when the tool reads the
@@ -357,7 +365,8 @@ SECTIONS: tuple[Section, ...] = (
             "--out-dir .cache/bench/refined/f3000 --json-tag f3000-mesh",
             quick=f"{PY} tools/bench_refine.py --world legacy --seeds {QUICK_HELD_OUT} --frames 1000 --rows +mesh "
             "--out-dir .cache/bench/refined/f1000 --json-tag f3000-mesh",
-            sizes=HELD_OUT_5_SIZES, modules=BASE + SYNTH + POSES + STEPS, quick_min=4),
+            sizes=HELD_OUT_5_SIZES, modules=BASE + SYNTH + POSES + STEPS, quick_min=4,
+            outputs=(("quick", ".cache/bench/refined/f1000"), ("full", ".cache/bench/refined/f3000"))),
     Section("bench_regt-refined", "Ground-truth re-estimation with refined poses",
             "The same re-estimation with the poses of `egograph refine` (run the section above first).",
             f"{PY} tools/bench_regt.py --world legacy --seeds {HELD_OUT_5} "
@@ -752,8 +761,9 @@ def run_command(command: str, cwd: str, env: dict, log: str) -> tuple[int, float
 
 
 def select(only: list[str] | None, sections: tuple[Section, ...] = SECTIONS) -> list[Section]:
-    """The sections named by ``--only`` (stems or headings; every section without), cheap first, each
-    after the sections it reads. An unknown name is an error listing the known ones."""
+    """The sections named by ``--only`` (stems or headings; every section without) and the sections
+    they read (``after``), cheap first, each after the sections it reads. An unknown name is an error
+    listing the known ones."""
     by = {s.stem: s for s in sections}
     chosen = list(sections)
     if only:
@@ -764,6 +774,12 @@ def select(only: list[str] | None, sections: tuple[Section, ...] = SECTIONS) -> 
         names = {heads.get(n, n) for n in only}
         chosen = [s for s in sections if s.stem in names]
     every = {s.stem: s for s in sections}
+    reads = [a for s in chosen for a in s.after]
+    while reads:   # and every section they read (a regeneration keeps those that are current)
+        a = every[reads.pop()]
+        if a not in chosen:
+            chosen.append(a)
+            reads.extend(a.after)
 
     def rank(s: Section) -> tuple[float, int]:   # after every section it reads, however cheap it is
         return max([(s.quick_min, 0)] + [(rank(every[a])[0], rank(every[a])[1] + 1) for a in s.after])
@@ -816,8 +832,17 @@ def regenerate(tier: str, only: list[str] | None, workers: int, scheduler: str |
     from egograph.io.atomic import atomic_write_text
 
     chosen = select(only, sections)
+    named = {s.stem for s in sections if not only or s.stem in only or s.heading in only}
     docs = load(bench_dir)
-    todo = [s for s in chosen if force or not is_current(s, docs.get(s.stem), tier)]
+    todo = []
+    for s in chosen:
+        missing = s.missing_outputs(tier)
+        if (force and s.stem in named) or not is_current(s, docs.get(s.stem), tier):
+            todo.append(s)
+        elif missing:   # (a fresh checkout: the record came with the repository, its outputs did not)
+            print(f"[{s.stem}] current, but {', '.join(missing)}, which a later section reads, is missing: "
+                  f"run again", flush=True)
+            todo.append(s)
     if longest:   # a time measured with another command (other sizes) says nothing of this one
         measured = {s.stem: t for s in todo if (t := last_wall_s(bench_dir, tier).get(s.stem)) is not None
                     and docs.get(s.stem, {}).get("regeneration", {}).get("section_command") == s.command_for(tier)}
