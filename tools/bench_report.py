@@ -1137,8 +1137,10 @@ def render(docs: dict[str, dict], sections: tuple[Section, ...] = SECTIONS, rege
            "import, found by reading their import statements, each by its syntax tree without docstrings, so "
            "a docstring, comment or layout edit changes nothing; a packaged YAML config by the settings the "
            "section can read: its front-end block only where the front-end is exercised) is not run again, so a killed regeneration "
-           "resumes where it stopped. Each section states its tier, the commit its record was made at and "
-           "whether that code changed since.", ""]
+           "resumes where it stopped. A section that reads another's outputs (the refined poses of "
+           "`bench_refine-f3000-mesh`) runs after it; `--only` that section runs the other first when its record is "
+           "not current or its outputs are missing (a fresh checkout has the records, not `.cache/`). Each section "
+           "states its tier, the commit its record was made at and whether that code changed since.", ""]
     out += regeneration_header(regens or {})
     out += ["The full tier's commands, from the repository root (`tools/bench_report.py --commands` prints them "
             "as a script, `--missing` only the sections not recorded yet; `--commands --tier quick` the quick "
