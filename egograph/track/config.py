@@ -205,18 +205,23 @@ class AnswersConfig(Checked):
                                    "the hand while carried, the most probable place while unseen) with a calibrated "
                                    "confidence; false: the old policy (answers only where a place has enough "
                                    "support, nothing while carried)")
-    min_confidence: float = knob(0.35, "the operating point of the offline graph and of smooth: the per-frame files "
-                                       "hold the answers of at least this confidence (answers.tsv holds every "
-                                       "answer, for the precision-recall curves). On the tuning recordings (seeds "
-                                       "4-8, 11, 12 at 900 and 3000 frames, SVOE and MVPE pooled) the offline "
-                                       "graph's P and R reach every baseline's at every threshold from 0 to 0.65, "
-                                       "smooth's from 0.05 to 0.6: 0.35 is near the centre of both "
-                                       "(tools/bench_confidence.py --fit); egograph track/smooth --min-confidence "
-                                       "sets it and causal_min_confidence", min=0.0, max=1.0)
-    causal_min_confidence: float = knob(0.05, "the operating point of graph-causal (every lag), as min_confidence: "
-                                              "on the tuning recordings its P and R reach every baseline's from 0 "
-                                              "to 0.1 only (SVOE recall at 1-1.5 m binds: higher, the carried and "
-                                              "unseen answers of a noisy front-end drop out); 0.05 is the centre",
+    min_confidence: float = knob(0.3, "the operating point of the offline graph and of smooth: the per-frame files "
+                                      "hold the answers of at least this confidence (answers.tsv holds every "
+                                      "answer, for the precision-recall curves). Chosen on the tuning recordings "
+                                      "(seeds 4-8, 11, 12 at 900 and 3000 frames, SVOE and MVPE pooled) where the "
+                                      "smaller of the offline graph's and smooth's margins over every baseline's "
+                                      "point (P and R at every threshold, the least of them) is widest: 2.0 points "
+                                      "at 0.3, 1.8 at 0.25, 1.0 at 0.35, 0.4 at 0.01-0.1, below 0 from 0.4 "
+                                      "(tools/bench_confidence.py --fit: its operating-point table); egograph "
+                                      "track/smooth --min-confidence sets it and causal_min_confidence",
+                                 min=0.0, max=1.0)
+    causal_min_confidence: float = knob(0.0, "the operating point of graph-causal (every lag), as min_confidence; "
+                                             "0: every answer, as the baselines answer every frame. Chosen as "
+                                             "min_confidence: graph-causal's margin over every baseline's point on "
+                                             "the tuning recordings is 3.6 points at 0-0.01 (binding: MVPE R@1.5), "
+                                             "0.8 at 0.02 and 0.4 from 0.03 to 0.25 (SVOE R@1.5: a noisy "
+                                             "front-end's answers at the hand and at the newest detection, right "
+                                             "within 0.25 m 3 % and 1 % of the time, are often right within 1.5 m)",
                                         min=0.0, max=1.0)
     distance_m: float = knob(0.25, "the confidence is the probability that the answer lies within this distance "
                                    "of the truth (what the calibration below was fitted for), metres", gt=0.0)
