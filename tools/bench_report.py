@@ -828,7 +828,9 @@ def regenerate(tier: str, only: list[str] | None, workers: int, scheduler: str |
     page after each section. With ``scheduler`` every section runs as a task on that Dask cluster (the
     repository at the same path on every worker), as many at once as it has worker threads; else
     ``workers`` at once on this machine. ``longest``: the longest sections first (:func:`longest_first`).
-    Exit 0 when every chosen section has a current record."""
+    ``only``: these sections and those they read (:func:`select`; the latter run only when not current or
+    their outputs are missing); ``force``: the sections of ``only`` (every section without) run even
+    when current. Exit 0 when every chosen section has a current record."""
     from egograph.io.atomic import atomic_write_text
 
     chosen = select(only, sections)
