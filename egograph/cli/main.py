@@ -629,11 +629,11 @@ def print_curves(con, det_set: str, reports: dict) -> None:
 
 # Measured (the demo from pixels, SVOE verified, and the tests: stop 58, 2026-12-06) from fresh clones on the
 # project's 2-core machine with nothing else running; README.md quotes the same sentence (tests/test_demo.py checks).
-DEMO_TIMES = ('On an idle 2-core machine, bash tools/demo.sh took 7 min 31 s from a fresh clone (creating .venv'
-              " from pip's cache included; rendering 900 device-like PV frames took 2 min 31 s of it and detect "
-              '3 min 36 s, SVOE verified, MVPE on its own proposals; 12 min 9 s of CPU time); bash tools/test.sh '
-              '7 min 56 s from a fresh clone on 2 pytest workers (creating .venv included; 1022 tests; 13 min 57 s '
-              'of CPU time).')
+DEMO_TIMES = ('On an idle 2-core machine (an AMD EPYC), bash tools/demo.sh took 9 min 24 s from a fresh clone '
+              "(creating .venv from pip's cache included; rendering 900 device-like PV frames took 3 min 0 s of it "
+              'and detect 4 min 53 s, SVOE verified, MVPE on its own proposals; 14 min 50 s of CPU time); bash '
+              'tools/test.sh 10 min 0 s from a fresh clone on 2 pytest workers (creating .venv included; 1026 '
+              'tests).')
 
 DEMO_EPILOG = """\
 Steps: 1. a synthetic recording in the device world (depth, poses, annotations, and PV frames that
