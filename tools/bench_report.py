@@ -760,19 +760,24 @@ def run_command(command: str, cwd: str, env: dict, log: str) -> tuple[int, float
     return rc, time.perf_counter() - t0, cpu
 
 
+def named(only: list[str] | None, sections: tuple[Section, ...] = SECTIONS) -> set[str]:
+    """The stems of the sections named by ``--only`` (stems or headings; every section without). An
+    unknown name is an error listing the known ones."""
+    stems = [s.stem for s in sections]
+    if not only:
+        return set(stems)
+    heads = {s.heading: s.stem for s in sections}
+    bad = [n for n in only if n not in stems and n not in heads]
+    if bad:
+        raise SystemExit(f"--only: unknown section {', '.join(bad)}; the sections: {', '.join(stems)}")
+    return {heads.get(n, n) for n in only}
+
+
 def select(only: list[str] | None, sections: tuple[Section, ...] = SECTIONS) -> list[Section]:
-    """The sections named by ``--only`` (stems or headings; every section without) and the sections
-    they read (``after``), cheap first, each after the sections it reads. An unknown name is an error
-    listing the known ones."""
-    by = {s.stem: s for s in sections}
-    chosen = list(sections)
-    if only:
-        heads = {s.heading: s.stem for s in sections}
-        bad = [n for n in only if n not in by and n not in heads]
-        if bad:
-            raise SystemExit(f"--only: unknown section {', '.join(bad)}; the sections: {', '.join(by)}")
-        names = {heads.get(n, n) for n in only}
-        chosen = [s for s in sections if s.stem in names]
+    """The sections :func:`named` by ``--only`` and the sections they read (``after``), cheap first,
+    each after the sections it reads."""
+    names = named(only, sections)
+    chosen = [s for s in sections if s.stem in names]
     every = {s.stem: s for s in sections}
     reads = [a for s in chosen for a in s.after]
     while reads:   # and every section they read (a regeneration keeps those that are current)
@@ -834,12 +839,12 @@ def regenerate(tier: str, only: list[str] | None, workers: int, scheduler: str |
     from egograph.io.atomic import atomic_write_text
 
     chosen = select(only, sections)
-    named = {s.stem for s in sections if not only or s.stem in only or s.heading in only}
+    forced = named(only, sections) if force else set()
     docs = load(bench_dir)
     todo = []
     for s in chosen:
         missing = s.missing_outputs(tier)
-        if (force and s.stem in named) or not is_current(s, docs.get(s.stem), tier):
+        if s.stem in forced or not is_current(s, docs.get(s.stem), tier):
             todo.append(s)
         elif missing:   # (a fresh checkout: the record came with the repository, its outputs did not)
             print(f"[{s.stem}] current, but {', '.join(missing)}, which a later section reads, is missing: "
