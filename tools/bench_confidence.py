@@ -53,15 +53,17 @@ FIT_KNOTS = [[0.0, 0.0], [1.0, 0.5]]
 """--fit: a stand's confidence is half its raw value (raw = 2 x confidence, in [0, 0.5]) ..."""
 FIT_KINDS = [0.6, 0.7, 0.8, 0.9]
 """... and every other kind (unseen, hand, last, put_down) one of these, above every stand's."""
-MIN_SHARE = {"offline": 0.3, "noisy_offline": 0.3, "causal": 0.05, "noisy_causal": 0.1, "smooth": 0.05,
+MIN_SHARE = {"offline": 0.3, "noisy_offline": 0.2, "causal": 0.05, "noisy_causal": 0.05, "smooth": 0.3,
              "noisy_smooth": 0.05}
 """--fit: per family and front-end, the smallest share of its stand answers one block of the isotonic
 fit holds: the value of 0.02, 0.05, 0.1, 0.2, 0.3 whose fit on all tuning recordings but one was best
-calibrated on the one left out, pooled over the 7 (leave-one-recording-out ECE on seeds 4-8, 11, 12;
-offline 0.069 SVOE / 0.051 MVPE at 0.3 against 0.166 / 0.071 at 0.05; causal 0.123 SVOE at 0.1,
-0.037 MVPE at 0.05; smooth not searched). At most 0.3: a larger share leaves one or two blocks, and
-the stands' confidences tied lose the ranking the curves are made of. Searched on the 900-frame
-recordings; kept, not searched again, when the fit moved to 900 and 3000 frames (stop 51)."""
+calibrated on the one left out, pooled (leave-one-recording-out ECE at graph.answers.distance_m over
+the 14 tuning recordings, seeds 4-8, 11, 12 at 900 and 3000 frames, searched at stop 61 on the
+calibration of stop 60: offline flat, 0.010-0.011 at every share, 0.3 kept; noisy_offline 0.037 at
+0.2 against 0.053 at 0.3; causal 0.017 at 0.05; noisy_causal 0.051 at 0.05 against 0.067 at 0.1;
+smooth 0.0006 at 0.3 against 0.019 at 0.05; noisy_smooth 0.041 at 0.05). At most 0.3: a larger
+share leaves one or two blocks, and the stands' confidences tied lose the ranking the curves are
+made of."""
 
 
 def decode(a: ScoredAnswers) -> tuple[np.ndarray, np.ndarray]:
@@ -191,22 +193,35 @@ def point(a: ScoredAnswers, k: int, min_conf: float = -np.inf) -> tuple[float, f
     return (tp / n if n else 0.0), (tp / a.n_gt if a.n_gt else 0.0)
 
 
-def margin(parts: list[dict], name: str, min_conf: float) -> tuple[float, str]:
-    """Tracker ``name``'s smallest margin over every baseline's point at operating point ``min_conf``:
-    the minimum over SVOE and MVPE, every threshold and every baseline of its P and R minus the
-    baseline's (fractions, pooled over ``parts``; >= 0: at or above every point), and where it binds."""
-    worst, where = np.inf, ""
+def baseline_points(parts: list[dict]) -> dict:
+    """{(set, threshold index): [(baseline, P, R), ...]}: every baseline's point, pooled over ``parts``."""
+    points = {}
     for det_set in ("svoe", "mvpe"):
-        a = pooled(parts, det_set, name)
-        bases = [b for b in parts[0][det_set] if not family(b)]
-        for k, tau in enumerate(THRESHOLDS):
-            p, r = point(a, k, min_conf)
-            for b in bases:
-                pb, rb = point(pooled(parts, det_set, b), k)
-                for what, d in (("P", p - pb), ("R", r - rb)):
-                    if d < worst:
-                        worst, where = float(d), f"{det_set.upper()} {what}@{tau:g} vs {b}"
+        for b in (b for b in parts[0][det_set] if not family(b)):
+            a = pooled(parts, det_set, b)
+            for k in range(len(THRESHOLDS)):
+                points.setdefault((det_set, k), []).append((b, *point(a, k)))
+    return points
+
+
+def margin(ours: dict, bases: dict, min_conf: float) -> tuple[float, str]:
+    """A tracker's smallest margin over every baseline's point at operating point ``min_conf``: the
+    minimum over SVOE and MVPE, every threshold and every baseline of its P and R minus the
+    baseline's (fractions; >= 0: at or above every point), and where it binds. ``ours``: the
+    tracker's pooled answers per set; ``bases``: :func:`baseline_points`."""
+    worst, where = np.inf, ""
+    for (det_set, k), points in bases.items():
+        p, r = point(ours[det_set], k, min_conf)
+        for b, pb, rb in points:
+            for what, d in (("P", p - pb), ("R", r - rb)):
+                if d < worst:
+                    worst, where = float(d), f"{det_set.upper()} {what}@{THRESHOLDS[k]:g} vs {b}"
     return worst, where
+
+
+def widest(margins: dict, names: list[str], grid: np.ndarray) -> float:
+    """The operating point of ``grid`` where the smallest of ``names``' margins is widest."""
+    return float(grid[int(np.argmax([min(margins[n][i][0] for n in names) for i in range(len(grid))]))])
 
 
 def report(parts: list[dict], seeds: list, min_conf: dict, tau_cal: float) -> dict:
@@ -324,7 +339,11 @@ def main() -> None:
         doc["knots"] = knots
         grid = np.round(np.concatenate([np.arange(0.0, 0.05, 0.01), np.arange(0.05, 0.96, 0.05)]), 2)
         ours = [n for n in parts[0]["svoe"] if family(n)]
-        margins = {n: [margin(parts, n, float(c)) for c in grid] for n in ours}
+        bases = baseline_points(parts)
+        margins = {}
+        for n in ours:
+            answers = {det_set: pooled(parts, det_set, n) for det_set in ("svoe", "mvpe")}
+            margins[n] = [margin(answers, bases, float(c)) for c in grid]
         feasible = {n: [float(c) for c, (m, _) in zip(grid, margins[n]) if m >= -1e-10] for n in ours}
         for n in ours:
             benchdoc.text(f"{n}: operating points (min_confidence) where its P and R >= every baseline's at every "
@@ -337,13 +356,10 @@ def main() -> None:
                        ["min_confidence"] + [f"{n} {w}" for n in ours for w in ("margin", "binds at")],
                        [[float(c)] + [x for n in ours for x in (round(100 * margins[n][i][0], 2), margins[n][i][1])]
                         for i, c in enumerate(grid)])
-        offline = [n for n in ours if family(n) in ("offline", "smooth")]
-        best = {"min_confidence": float(grid[int(np.argmax([min(margins[n][i][0] for n in offline)
-                                                            for i in range(len(grid))]))])}
+        best = {"min_confidence": widest(margins, [n for n in ours if family(n) in ("offline", "smooth")], grid)}
         causal = [n for n in ours if family(n) == "causal"]
         if causal:
-            best["causal_min_confidence"] = float(grid[int(np.argmax([min(margins[n][i][0] for n in causal)
-                                                                      for i in range(len(grid))]))])
+            best["causal_min_confidence"] = widest(margins, causal, grid)
         benchdoc.text("widest margins: " + ", ".join(f"graph.answers.{k} {v:g}" for k, v in best.items()))
         doc["widest_margin_min_confidence"] = best
         doc["feasible_min_confidence"] = feasible
