@@ -173,8 +173,8 @@ class PlacesConfig(Checked):
 
 # Calibration fitted on tuning seeds 4-8, 11, 12 at 900 and 3000 frames (14 recordings, SVOE and MVPE: the
 # lengths of both held-out sets) by tools/bench_confidence.py --fit (docs/bench/bench_confidence-fit.json): the
-# stands' [raw, calibrated] knots (isotonic, each block at least the share of the answers its MIN_SHARE gives
-# per family and front-end) and the other kinds' confidences (graph.answers below). A
+# stands' [raw, calibrated] knots (isotonic, each block at least 30 % of the answers offline, 5 % causal
+# MVPE-like, 10 % causal SVOE-like: its MIN_SHARE) and the other kinds' confidences (graph.answers below). A
 # kind no tuning answer has (offline: put_down; smooth: unseen, last, put_down; noisy smooth: unseen, put_down)
 # has the share of all the family's answers. Refitted at stop 52: the knots before were fitted at 0feb345 on
 # the 900-frame recordings only, before the closed-form switch solve (03262a4) changed the raw confidences
@@ -185,11 +185,8 @@ class PlacesConfig(Checked):
 # (causal_kinds' unseen and last swapped: 0.065 / 0.98 -> 0.90 / 0.03). The offline and causal knots moved
 # too, with the offline code unchanged: the tuning recordings were generated anew on another machine (AMD
 # EPYC; stop 52: Intel Xeon), whose answers differ a little (offline stands 198,710 against 198,810).
-# Refitted at stop 61 with MIN_SHARE chosen by leave-one-recording-out on the 14 tuning recordings: only the
-# noisy offline knots moved (blocks of 20 % rather than 30 %: 0.8497 split into 0.7895 and 0.9491).
 _OFFLINE_CALIBRATION = [[0.0, 0.9612], [0.36533, 0.9612], [0.760484, 0.9944], [1.0, 0.9944]]
-_NOISY_OFFLINE_CALIBRATION = [[0.0, 0.6307], [0.333963, 0.6307], [0.548141, 0.7895], [0.870639, 0.9491],
-    [1.0, 0.9491]]
+_NOISY_OFFLINE_CALIBRATION = [[0.0, 0.6307], [0.333963, 0.6307], [0.669844, 0.8497], [1.0, 0.8497]]
 _CAUSAL_CALIBRATION = [[0.0, 0.6267], [0.844954, 0.6267], [0.999396, 0.9588], [0.999451, 0.9787], [0.99998, 0.9891],
     [1.0, 0.9891]]
 _NOISY_CAUSAL_CALIBRATION = [[0.0, 0.2761], [0.598351, 0.2761], [0.972578, 0.5266], [0.999429, 0.8232], [0.99954,
