@@ -218,15 +218,24 @@ def _select_instance_rows(obs: Observations, instance: int, threshold: float) ->
     return sub.select(order)
 
 
-def _solve_offline(subs, t_frames: np.ndarray, cfg: GraphConfig, negative, support,
+def _frames_and_ids(obs: Observations, timestamps: Sequence[int],
+                    instances: Sequence[int] | None = None) -> tuple[np.ndarray, list[int]]:
+    """(the sorted PV frame ticks, the instances to track: ``instances`` or every one observed)."""
+    t_frames = np.asarray(sorted(int(t) for t in timestamps), dtype=np.int64)
+    return t_frames, (sorted({int(i) for i in obs.instance}) if instances is None else list(instances))
+
+
+def _solve_offline(obs: Observations, ids: list[int], t_frames: np.ndarray, cfg: GraphConfig, negative, support,
                    progress: bool) -> tuple[list[InstanceSolution], list[float]]:
-    """Every instance solved offline -> (solutions, the detection noise scale of each solve).
+    """Every instance of ``ids`` solved offline on its rows of ``obs`` above graph.score_threshold
+    -> (solutions in the order of ``ids``, the detection noise scale of each solve).
 
     With ``cfg.noise.auto_scale`` the first solve uses ``auto_start``; the scale is then estimated
     from the solve's own stands (:mod:`egograph.track.noise_scale`) and everything solved again,
     until the estimate moves by less than 5 % or after ``auto_rounds`` re-solves; the solutions
     returned are those of the last scale. Without it, one solve at ``scale``.
     """
+    subs = [(inst, _select_instance_rows(obs, inst, cfg.score_threshold)) for inst in ids]
     noise = cfg.noise
     scales = [float(noise.auto_start if noise.auto_scale else noise.scale)]
     bar = None
@@ -258,10 +267,8 @@ def offline_noise_scale(obs: Observations, timestamps: Sequence[int], cfg: Graph
     """The detection noise scale (graph.noise) the offline graph fits on ``obs``, and the number of
     stand residuals of its last solve that the fit read (:func:`_solve_offline`; no places, chains or
     answers: what ``egograph smooth`` needs to pick its calibration, egograph.track.smooth)."""
-    t_frames = np.asarray(sorted(int(t) for t in timestamps), dtype=np.int64)
-    ids = sorted({int(i) for i in obs.instance})
-    subs = [(inst, _select_instance_rows(obs, inst, cfg.score_threshold)) for inst in ids]
-    solutions, scales = _solve_offline(subs, t_frames, cfg, None, None, False)
+    t_frames, ids = _frames_and_ids(obs, timestamps)
+    solutions, scales = _solve_offline(obs, ids, t_frames, cfg, None, None, False)
     return scales[-1], len(stand_residuals(solutions))
 
 
@@ -281,12 +288,10 @@ def graph_tracker(obs: Observations, timestamps: Sequence[int], cfg: GraphConfig
     scale that picks the calibration of the offline answers (``graph.answers.noisy_scale``; default
     the scale fitted here; ``egograph smooth`` passes that of the distinct sightings).
     """
-    t_frames = np.asarray(sorted(int(t) for t in timestamps), dtype=np.int64)
-    ids = sorted({int(i) for i in obs.instance}) if instances is None else list(instances)
+    t_frames, ids = _frames_and_ids(obs, timestamps, instances)
     if causal:
         return _causal_result(obs, t_frames, cfg, ids, lag_s, negative, support)
-    subs = [(inst, _select_instance_rows(obs, inst, cfg.score_threshold)) for inst in ids]
-    solutions, scales = _solve_offline(subs, t_frames, cfg, negative, support, progress)
+    solutions, scales = _solve_offline(obs, ids, t_frames, cfg, negative, support, progress)
     cfg = dataclasses.replace(cfg, noise=dataclasses.replace(cfg.noise, scale=scales[-1]))
     n_excluded = _places_and_chains(solutions, t_frames, cfg, negative, support)
     if calibration_scale is None:
