@@ -2,8 +2,11 @@
 
 from __future__ import annotations
 
+import fcntl
+import os
 import shutil
 from pathlib import Path
+from typing import Callable
 
 import numpy as np
 import pytest
@@ -36,14 +39,30 @@ def tiny_rgb_rec(tmp_path_factory) -> Path:
     return make_recording(tmp_path_factory.mktemp("tiny_rgb") / "rec", 3, "frames=30")
 
 
+def built_once(tmp_path_factory, name: str, build: Callable[[Path], None]) -> Path:
+    """``name``'s folder, made by ``build(folder)`` once for the whole run: under pytest-xdist every
+    worker process has its own session, so the first worker to ask builds it in the run's shared
+    temporary folder (under a lock) and the others wait and read it. For recordings that tests only
+    read: a 150-frame render costs 36 s, and three test files on different workers asked for it."""
+    base = tmp_path_factory.getbasetemp()
+    shared = base.parent if os.environ.get("PYTEST_XDIST_WORKER") else base   # xdist: base is per worker
+    root = shared / f"shared-{name}"
+    with open(shared / f"shared-{name}.lock", "w") as lock:
+        fcntl.flock(lock, fcntl.LOCK_EX)   # released when the file closes
+        if not (root / ".built").is_file():
+            shutil.rmtree(root, ignore_errors=True)   # a build a killed worker left half done
+            build(root)
+            (root / ".built").touch()
+    return root
+
+
 @pytest.fixture(scope="session")
 def device_rec(tmp_path_factory) -> Path:
     """A 150-frame recording of the device world (synth/device-tiny, seed 2: one carry, frames 61-102,
-    with the hand reaching for it, and fast head turns), with PV RGB frames."""
-    root = tmp_path_factory.mktemp("device") / "rec"
+    with the hand reaching for it, and fast head turns), with PV RGB frames. Read only: shared by the
+    test workers (:func:`built_once`)."""
     cfg = load_config(SynthConfig, synth_config("device-tiny"), ["frames=150"])
-    generate(root, cfg, seed=2, progress=False)
-    return root
+    return built_once(tmp_path_factory, "device", lambda root: generate(root / "rec", cfg, seed=2, progress=False)) / "rec"
 
 
 def sequence_dir(root: Path) -> Path:

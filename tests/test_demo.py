@@ -95,8 +95,8 @@ def test_demo_help_and_readme_say_how_long_the_demo_and_the_tests_take():
     assert flat(DEMO_TIMES.replace(" `egograph demo --help` says the same.", "")) in flat(readme)
 
 
-def run_demo(out: Path, *extra: str) -> list[str]:
-    p = subprocess.run([str(VENV_BIN / "egograph"), "demo", str(out), "--frames", "150", "--seed", "2", *extra],
+def run_demo(out: Path, frames: int, *extra: str) -> list[str]:
+    p = subprocess.run([str(VENV_BIN / "egograph"), "demo", str(out), "--frames", str(frames), "--seed", "2", *extra],
                        capture_output=True, text=True, timeout=1200, env={**os.environ, "COLUMNS": "100"})
     assert p.returncode == 0, p.stderr[-3000:]
     lines = p.stdout.splitlines()
@@ -140,14 +140,14 @@ def check_demo(out: Path, lines: list[str], sets: list[str], pv_frames: bool) ->
 @pytest.mark.slow
 def test_the_demo_detects_in_device_like_frames_and_ends_with_the_path_of_its_pictures(tmp_path):
     out = tmp_path / "demo"
-    lines = run_demo(out)
+    lines = run_demo(out, 90)   # 3 s: render and detect are most of the suite's longest test
     assert any("device-like PV frames" in line for line in lines)
     # egograph detect ran on the rendered frames, both enrollments, and said what it found
     for det_set in ("SVOE", "MVPE"):
-        summary = [line for line in lines if line.startswith(f"{det_set}: 150 PV frames, ")]
+        summary = [line for line in lines if line.startswith(f"{det_set}: 90 PV frames, ")]
         assert len(summary) == 1, det_set
     assert sorted(p.name for p in (out / "detections").iterdir()) == ["mvpe", "proposal_embeddings.npz", "svoe"]
-    assert len(list((out / "recording" / "synth_seq" / "pv").glob("*.png"))) == 150
+    assert len(list((out / "recording" / "synth_seq" / "pv").glob("*.png"))) == 90
     # a set in which nothing was found, or nothing could be lifted, is said so and not tracked; the
     # others are tracked and scored
     empty = {s for s in ("svoe", "mvpe") if f"{s.upper()}: no instance found in any PV frame; its trackers are not run" in lines}
@@ -170,7 +170,25 @@ def test_the_demo_detects_in_device_like_frames_and_ends_with_the_path_of_its_pi
 @pytest.mark.slow
 def test_the_simulated_demo_tracks_both_detection_sets(tmp_path):
     out = tmp_path / "demo"
-    lines = run_demo(out, "--simulated")
+    lines = run_demo(out, 150, "--simulated")   # at 90 frames seed 2's simulated detections are all false
     assert not (out / "detections").exists()
     assert not list((out / "recording" / "synth_seq" / "pv").glob("*.png"))   # no RGB rendered
     check_demo(out, lines, ["svoe", "mvpe"], pv_frames=False)
+
+
+@pytest.mark.slow
+def test_a_demo_whose_detections_give_no_answer_says_so_and_exits_2(tmp_path):
+    """Seed 2's 90 simulated frames: SVOE's one detection has no depth, MVPE's 13 all score below the
+    threshold. Each set is said so and left out; with none left the demo ends with exit 2 and one line,
+    not with tables of nothing and a failing picture step."""
+    out = tmp_path / "demo"
+    p = subprocess.run([str(VENV_BIN / "egograph"), "demo", str(out), "--frames", "90", "--seed", "2", "--simulated"],
+                       capture_output=True, text=True, timeout=600, env={**os.environ, "COLUMNS": "100"})
+    assert p.returncode == 2, p.stderr[-3000:]
+    assert "SVOE: none of its detections could be lifted to 3D" in p.stdout
+    assert ("MVPE: no tracker answered any PV frame (0 of its 13 lifted detections score at least "
+            "track.score_threshold 0.6); it is left out of the evaluation and the pictures") in " ".join(p.stdout.split())
+    assert "IT3DEgo evaluation" not in p.stdout and not (out / "plots").exists()
+    errors = [line for line in p.stderr.splitlines() if line.startswith("egograph: error:")]
+    assert len(errors) == 1 and "nothing to score" in errors[0] and "--simulated` tracks" not in errors[0]
+    assert "Traceback" not in p.stderr

@@ -200,7 +200,9 @@ def baseline_points(parts: list[dict]) -> dict:
     """{(set, threshold index): [(baseline, P, R), ...]}: every baseline's point, pooled over ``parts``."""
     points = {}
     for det_set in ("svoe", "mvpe"):
-        for b in (b for b in parts[0][det_set] if not family(b)):
+        for b in parts[0][det_set]:
+            if family(b):   # an egograph tracker, not a baseline
+                continue
             a = pooled(parts, det_set, b)
             for k in range(len(THRESHOLDS)):
                 points.setdefault((det_set, k), []).append((b, *point(a, k)))

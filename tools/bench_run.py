@@ -7,14 +7,16 @@
 
 Generates N synthetic sequences (``synth/svoe``, seeds 1..N, depth only, with PV RGB when
 ``--stages`` has detect; kept in ``--workdir`` and not generated again), then runs ``egograph
-run`` on them with ``--workers 1`` and with ``--workers 2``, alternately, ``--repeat`` times each,
-each run into a fresh RUNS folder (nothing reused), and prints the wall time of each, the throughput, the sum of the tasks'
-own wall and CPU seconds (``run.json``; CPU above wall means a task used more than one core), the
-sum of task seconds over the wall time (how many workers were busy on average), each worker
-process's peak resident memory (``run.json``'s ``worker_max_rss_mb``), the bytes written per
-frame, whether both summaries are the same bytes, the speed-up of each round and their median
-(what the target reads: on a shared machine one pair of runs moved by 0.1-0.2x from one
-regeneration to the next), and the first 1-worker run's wall and CPU time per stage per frame. From those, ``--project R F W`` projects R recordings of F frames on W workers.
+run`` on them with ``--workers 1`` and with ``--workers 2``, alternately, ``--repeat`` times
+each, each run into a fresh RUNS folder (nothing reused), and prints the wall time of each, the
+throughput, the sum of the tasks' own wall and CPU seconds (``run.json``; CPU above wall means a
+task used more than one core), the sum of task seconds over the wall time (how many workers were
+busy on average), each worker process's peak resident memory (``run.json``'s
+``worker_max_rss_mb``), the bytes written per frame, whether every run's summary is the same
+bytes, the speed-up of each round and their median (what the target reads: on a shared machine
+one pair of runs moved by 0.1-0.2x from one regeneration to the next), and the first 1-worker
+run's wall and CPU time per stage per frame. From those, ``--project R F W`` projects R
+recordings of F frames on W workers.
 
 With ``--kill-after F`` a third run (2 workers) is killed with SIGKILL, process group and all
 (scheduler, workers, nanny), after F times the 2-worker wall time, then run again with the same
@@ -204,6 +206,14 @@ def kill_and_resume(ds: Path, runs: Path, after_s: float, stages: str, trackers:
             "redone": redone, "resume_wall": wall, "summary": (runs / "latest" / "summary.json").read_bytes()}
 
 
+def positive_int(text: str) -> int:
+    """argparse type: an integer of at least 1 (``--repeat 0`` would time nothing)."""
+    value = int(text)
+    if value < 1:
+        raise argparse.ArgumentTypeError(f"{text} is not a positive integer")
+    return value
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--sequences", type=int, default=4)
@@ -220,7 +230,7 @@ def main() -> None:
                                                  "removed at the end)")
     ap.add_argument("--kill-after", type=float, metavar="F",
                     help="also kill a 2-worker run after F x its uninterrupted wall time and run it again")
-    ap.add_argument("--repeat", type=int, default=3,
+    ap.add_argument("--repeat", type=positive_int, default=3,
                     help="rounds of a 1-worker and a 2-worker run, alternating; the speed-up is their median")
     ap.add_argument("--project", type=int, nargs=3, default=[50, 10000, 16], metavar=("RECORDINGS", "FRAMES", "CORES"),
                     help="project the wall time of this many recordings of this many frames on a cluster of this "
@@ -236,7 +246,7 @@ def main() -> None:
                           parallel=args.parallel)
         t_synth = time.perf_counter() - t
         rounds = []   # per round {workers: (wall, info)}; alternating, so slow spells of the machine hit both
-        for k in range(max(1, args.repeat)):
+        for k in range(args.repeat):
             rows = {}
             for workers in (1, 2):
                 wall, info = run(ds, work / f"runs-w{workers}", workers, args.stages, args.trackers, args.detections)
@@ -269,10 +279,11 @@ def main() -> None:
                         "the 2 cores leaves each worker a fraction of one: the 2-worker figure is a floor). Generating "
                         f"the sequences took {t_synth:.0f} s (not in the runs; 0 when cached).")
     (w1, i1), (w2, i2) = rows[1], rows[2]
-    for workers, (_, info) in rows.items():
-        if info["failed"]:
-            benchdoc.text(f"--workers {workers}: {len(info['failed'])} tasks did not end ok (failed, or skipped after "
-                          f"one that failed): {', '.join(info['failed'][:6])}")
+    for k, r in enumerate(rounds):
+        for workers, (_, info) in r.items():
+            if info["failed"]:
+                benchdoc.text(f"round {k + 1}, --workers {workers}: {len(info['failed'])} tasks did not end ok "
+                              f"(failed, or skipped after one that failed): {', '.join(info['failed'][:6])}")
     ratios = [r[1][0] / r[2][0] for r in rounds]
     speedup = statistics.median(ratios)
     same = all(r[w][1]["summary"] == i1["summary"] for r in rounds for w in (1, 2))

@@ -487,6 +487,7 @@ def cmd_demo(args) -> int:
         if lifted is None:
             del inputs[det_set]
             continue
+        answered = 0
         for mode, (obs, _) in lifted.items():
             cfg.lift.mode = mode
             # The paper's pipeline is kf on reference lifting; the graph runs on robust lifting.
@@ -494,14 +495,30 @@ def cmd_demo(args) -> int:
             for tracker in trackers:
                 res = out / "results" / f"{det_set}_{tracker}_{mode}"
                 result = track(rec, tracker, obs, cfg, res)
+                answered += result.n_predictions
                 if result.intervals is not None:
                     graph_runs[(det_set, tracker)] = result
                 reports[f"{det_set} {tracker} ({mode} lift)"] = evaluate(rec, result)
                 results[f"{det_set} {tracker} ({mode} lift)"] = res
+        if not answered:
+            # scores and pictures of no answer say nothing (a short recording whose few detections
+            # all score below the threshold): the set is said so and left out, as an unlifted one
+            obs = lifted["robust"][0]
+            n_above = int((obs.score >= cfg.track.score_threshold).sum())
+            con.print(f"{det_set.upper()}: no tracker answered any PV frame ({n_above} "
+                      f"of its {len(obs)} lifted detections score at least track.score_threshold "
+                      f"{cfg.track.score_threshold:g}); it is left out of the evaluation and the pictures", soft_wrap=True)
+            for store in (reports, results):
+                for key in [k for k in store if k.startswith(f"{det_set} ")]:
+                    del store[key]
+            for key in [k for k in graph_runs if k[0] == det_set]:
+                del graph_runs[key]
+            del inputs[det_set]
     if not reports:
-        raise EgographError("the demo found no instance in any PV frame that could be lifted to 3D, so there is "
-                            "nothing to track: see the detect and lift lines above; `egograph demo --simulated` "
-                            "tracks the simulated detections")
+        raise EgographError("the demo found no instance in any PV frame that could be lifted to 3D and tracked, "
+                            "so there is nothing to score: see the " + ("detect, " if pixels else "") + "lift and "
+                            "track lines above; a longer recording (--frames) or another --seed has more"
+                            + ("; `egograph demo --simulated` tracks the simulated detections" if pixels else ""))
     step = 4 if pixels else 3
     primary = scfg.detections.primary if (scfg.detections.primary, "graph") in graph_runs else \
         next(k for k, t in graph_runs if t == "graph")
