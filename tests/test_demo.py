@@ -140,7 +140,7 @@ def check_demo(out: Path, lines: list[str], sets: list[str], pv_frames: bool) ->
 @pytest.mark.slow
 def test_the_demo_detects_in_device_like_frames_and_ends_with_the_path_of_its_pictures(tmp_path):
     out = tmp_path / "demo"
-    lines = run_demo(out, 90)   # 3 s: render and detect are most of the suite's longest test
+    lines = run_demo(out, 90)   # 90 frames (3 s of recording): render and detect make this the suite's longest test
     assert any("device-like PV frames" in line for line in lines)
     # egograph detect ran on the rendered frames, both enrollments, and said what it found
     for det_set in ("SVOE", "MVPE"):
