@@ -173,8 +173,8 @@ class PlacesConfig(Checked):
 
 # Calibration fitted on tuning seeds 4-8, 11, 12 at 900 and 3000 frames (14 recordings, SVOE and MVPE: the
 # lengths of both held-out sets) by tools/bench_confidence.py --fit (docs/bench/bench_confidence-fit.json): the
-# stands' [raw, calibrated] knots (isotonic, each block at least 30 % of the answers offline, 5 % causal
-# MVPE-like, 10 % causal SVOE-like: its MIN_SHARE) and the other kinds' confidences (graph.answers below). A
+# stands' [raw, calibrated] knots (isotonic, each block at least the share of the answers that MIN_SHARE in
+# tools/bench_confidence.py gives its family and front-end) and the other kinds' confidences (graph.answers below). A
 # kind no tuning answer has (offline: put_down; smooth: unseen, last, put_down; noisy smooth: unseen, put_down)
 # has the share of all the family's answers. Refitted at stop 52: the knots before were fitted at 0feb345 on
 # the 900-frame recordings only, before the closed-form switch solve (03262a4) changed the raw confidences
