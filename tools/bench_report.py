@@ -566,6 +566,7 @@ def import_closure(roots: list[str], read) -> set[str]:
     name computed at run time is not followed (egograph does so only for optional third-party
     packages, egograph.core.resources.require)."""
     seen: set[str] = set()
+    files: dict[str, str | None] = {}   # module name -> its file: most modules are imported from many files
     todo = [r for r in roots if read(r) is not None]
     while todo:
         rel = todo.pop()
@@ -575,7 +576,10 @@ def import_closure(roots: list[str], read) -> set[str]:
         for name in _imported_names(rel, read(rel)):
             parts = name.split(".")
             for k in range(1, len(parts) + 1):
-                f = _module_file(".".join(parts[:k]), read)
+                module = ".".join(parts[:k])
+                if module not in files:
+                    files[module] = _module_file(module, read)
+                f = files[module]
                 if f is not None and f not in seen:
                     todo.append(f)
     return seen
@@ -589,10 +593,16 @@ def exercises(paths: tuple[str, ...] | list[str], package: str) -> bool:
 def config_view(data: bytes, paths: tuple[str, ...] | list[str]) -> bytes:
     """The part of a packaged YAML config that code under ``paths`` can read, canonical (sorted JSON):
     a section that does not exercise ``egograph/frontend`` reads no ``frontend`` block."""
+    return _config_view(data, exercises(paths, "egograph/frontend"))
+
+
+@functools.lru_cache(maxsize=None)
+def _config_view(data: bytes, with_frontend: bool) -> bytes:
+    """:func:`config_view`, cached by content as :func:`code_view`."""
     import yaml
 
     doc = yaml.safe_load(data.decode())
-    if isinstance(doc, dict) and not exercises(paths, "egograph/frontend"):
+    if isinstance(doc, dict) and not with_frontend:
         doc = {k: v for k, v in doc.items() if k != "frontend"}
     return json.dumps(doc, sort_keys=True, default=str).encode()
 
@@ -623,8 +633,11 @@ def _commit_files(repo: str, commit: str, rel: str) -> dict[str, bytes] | None:
 
 
 def _reader(repo: Path, commit: str | None):
-    """relative path -> bytes | None, of the working tree or of ``commit``."""
+    """relative path -> bytes | None, of the working tree or of ``commit``. The working tree's files
+    are read once per reader (one digest): the import closure asks for each file many times, once per
+    import of it and of its parents (566,000 reads and 11 s a page render before)."""
     if commit is None:
+        @functools.lru_cache(maxsize=None)
         def read(rel: str) -> bytes | None:
             p = repo / rel
             return p.read_bytes() if p.is_file() else None
