@@ -239,6 +239,34 @@ def test_image_proposals_find_a_distinct_object():
     assert max(iou(p.box, (300, 200, 420, 320)) for p in props) > 0.8
 
 
+def printed_box_image(seed: int) -> np.ndarray:
+    """A 160 x 120 px object printed in four colour bands (a label, a product's print) on a plain grey
+    wall, with sensor noise and a little blur: the graph segments split it into parts."""
+    rng = np.random.default_rng(seed)
+    img = np.full((360, 640, 3), 110.0)
+    for k, colour in enumerate([(200, 40, 40), (40, 170, 60), (210, 200, 50), (50, 60, 190)]):
+        img[120 + 30 * k:150 + 30 * k, 240:400] = colour
+    img = np.clip(img + rng.normal(0, 10, img.shape), 0, 255).astype(np.uint8)
+    return cv2.GaussianBlur(img, (5, 5), 1.5)
+
+
+@pytest.mark.parametrize("seed", [0, 2])
+def test_selective_search_finds_the_whole_of_an_object_the_segments_split(seed):
+    """``image_selective``: selective search groups the segments of a many-coloured object, so a box of
+    the whole object is proposed; the graph segments' own boxes stay in the list, and two runs give the
+    same boxes in the same order (OpenCV returns them in a random order)."""
+    img, whole = printed_box_image(seed), (240, 120, 400, 240)
+    plain = ImageProposals(FrontendConfig())(img)
+    assert max(iou(p.box, whole) for p in plain) < 0.8
+    cfg = FrontendConfig(image_selective="single")
+    props = ImageProposals(cfg)(img)
+    assert max(iou(p.box, whole) for p in props) > 0.95
+    assert [p.box for p in props[:len(plain)]] == [p.box for p in plain]
+    again = ImageProposals(cfg)(img)
+    assert [(p.box, p.conf) for p in again] == [(p.box, p.conf) for p in props]
+    assert all(0.0 <= p.conf <= 1.0 and p.source == "image" for p in props)
+
+
 def test_nms_prefers_geometry_and_keeps_separate_boxes():
     a = Proposal((0, 0, 100, 100), "image", 0.5)
     b = Proposal((5, 5, 100, 100), "geometry", 0.2)

@@ -121,15 +121,18 @@ DEVICE_FRONTEND_SIZES = (("quick", "1 device-world RGB recording x 300 frames (s
                          ("full", "6 device-world RGB recordings x 300 frames (seeds 21-26)"))
 # the verified front-end at configs/frontend-svoe.yaml's operating point (0.3, chosen on tuning recordings
 # 27-29), for MVPE too: detector and trackers at one threshold
-VERIFY_VARIANT = ("--variant verify:frontend.verify=all,frontend.verify_threshold=0.3,graph.score_threshold=0.3,"
-                  "track.score_threshold=0.3")
+VERIFY_SETS = "frontend.verify=all,frontend.verify_threshold=0.3,graph.score_threshold=0.3,track.score_threshold=0.3"
+VERIFY_VARIANT = f"--variant verify:{VERIFY_SETS}"
+# issue 39's proposals: selective search beside the segments, at the cap where it pays (docs/frontend.md, stop 63)
+SELECTIVE = "frontend.image_selective=single"
+SELECTIVE_VARIANT = f"--variant verify+selective:{VERIFY_SETS},{SELECTIVE},frontend.max_proposals=24"
 # the held-out device-world RGB recordings bench_frontend_trackers-device builds, and the proposal variants
 DEVICE_RGB = ".cache/bench_fe/device/f300"
 MULTISCALE = "frontend.image_k_scales=[100,300,1000],frontend.image_per_scale=8"
 RECALL_ARGS = ("--recall --recall-step 10 --recall-caps 12 24 48 --runs svoe --skip-vit --cache .cache/bench_fe/models "
                "--variant current: --variant source-order:frontend.proposal_order=source "
                "--variant no-mesh:frontend.proposals=geometry+image "
-               f"--variant 'multiscale:{MULTISCALE}'")
+               f"--variant 'multiscale:{MULTISCALE}' --variant selective:{SELECTIVE}")
 STRONG_POSE_ERROR = ("--synth-set pose_error.drift_trans=0.006 --synth-set pose_error.drift_rot=0.1 "
                      "--synth-set pose_error.jump_rate=0.3 --synth-set 'pose_error.jump_trans=[0.04,0.1]'")
 CONFIDENCE_SIZES = (("quick", "2 held-out recordings x 900 frames (seeds 1, 301)"),
@@ -285,10 +288,12 @@ SECTIONS: tuple[Section, ...] = (
             "detections, the visible instance-frames found, and the graph against the paper's pipeline on those "
             "detections, with the opt-in verification (issue 39, `frontend.verify=all`, detector and trackers at "
             "threshold 0.3: for SVOE exactly `--config frontend-svoe`) as a second front-end row in the full tier (the "
-            "quick tier has the current front-end only). MVPE's proposals are `geometry+image` since stop 47 (before: `geometry`, 76 / 177 detections on "
+            "quick tier has the current front-end only), and in the full tier a third: the verified front-end with "
+            "OpenCV's selective search beside the image segments and 24 proposals a frame instead of 12 "
+            "(`frontend.image_selective=single`, `max_proposals=24`; stop 63, opt-in). MVPE's proposals are `geometry+image` since stop 47 (before: `geometry`, 76 / 177 detections on "
             "the instance); SVOE's `geometry+mesh+image` since stop 55 (before: `geometry+image`). The README's first table (end to end from pixels) is this record's default rows.",
             f"{PY} tools/bench_frontend_trackers.py --world device --seeds 21 22 23 24 25 26 --frames 300 --no-sot "
-            f"--no-guide --no-causal {VERIFY_VARIANT} --json-tag device",
+            f"--no-guide --no-causal {VERIFY_VARIANT} {SELECTIVE_VARIANT} --json-tag device",
             quick=f"{PY} tools/bench_frontend_trackers.py --world device --seeds 21 --frames 300 --no-sot --no-guide "
             "--no-causal --json-tag device",
             sizes=DEVICE_FRONTEND_SIZES, modules=SET_TRACKING + FRONTEND, quick_min=15),
@@ -311,8 +316,9 @@ SECTIONS: tuple[Section, ...] = (
             "(`geometry+mesh+image` since stop 55, the cap filled by objectness and agreement between the "
             "sources since stop 58), the cap filled source by source as before stop 58 "
             "(`proposal_order=source`: geometry, mesh, image), without the objects standing in the scene mesh "
-            "(`geometry+image`), and the default with multi-scale image segments "
-            "(`image_k_scales=[100,300,1000]`, 8 a scale).",
+            "(`geometry+image`), the default with multi-scale image segments "
+            "(`image_k_scales=[100,300,1000]`, 8 a scale), and the default with OpenCV's selective search beside "
+            "the segments (`image_selective=single`, stop 63, opt-in).",
             f"{PY} tools/bench_detect.py --rec {DEVICE_RGB}/seed21 {DEVICE_RGB}/seed22 {DEVICE_RGB}/seed23 "
             f"{DEVICE_RGB}/seed24 {DEVICE_RGB}/seed25 {DEVICE_RGB}/seed26 {RECALL_ARGS} --json-tag recall",
             quick=f"{PY} tools/bench_detect.py --rec {DEVICE_RGB}/seed21 {RECALL_ARGS} --json-tag recall",

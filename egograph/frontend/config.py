@@ -14,6 +14,7 @@ MVPE_POOLING = ("mean", "max")
 RESIZE_MODES = ("stretch", "pad")
 WHITEN_SETS = ("none", "svoe", "all")
 PROPOSAL_ORDERS = ("objectness", "source")
+SELECTIVE_MODES = ("none", "single", "fast")
 EXCLUSIVE_SETS = ("none", "svoe", "mvpe", "all")
 # the SVOE calibration map (verify_calib_svoe) and how it was fitted
 CALIB_SVOE = [-3.0546, 0.7936, 1.005, 0.5393, -1.6094, 1.9977, -0.2605]
@@ -218,6 +219,17 @@ class FrontendConfig(Checked):
     image_per_scale: int = knob(0, "image: most segments kept per scale, the most object-like first (0 = all, "
                                    "the confidence of every image segment 0.5 and the larger first, as before)",
                                 min=0)
+    image_selective: str = knob("none", "image: also the boxes of OpenCV's selective search (Uijlings et al. 2013: "
+                                        "the graph segments grouped hierarchically by colour, texture, size and "
+                                        "fill) on the frame at image_scale, each with its objectness as "
+                                        "confidence: 'single' (one colour space, one strategy; 33 ms a frame), "
+                                        "'fast' (two of each; 230 ms), 'none'. It finds objects the graph "
+                                        "segments split in parts. Held-out proposal recall with "
+                                        "geometry+mesh+image (docs/frontend.md, stop 63): 'single' 61.7 / 73.6 / "
+                                        "76.7 % at a max_proposals of 12 / 24 / 48, against 64.2 / 68.9 / 69.4 % "
+                                        "without it: it pays from a cap of 24. Off by default until its effect on "
+                                        "the detections is measured (bench_frontend_trackers-device's variant)",
+                                choices=SELECTIVE_MODES)
     mask_threshold: float = knob(0.5, "ONNX mask model: a mask pixel belongs to the object at this "
                                       "probability or more", min=0.0, max=1.0)
     guidance_radius_px: float = knob(150.0, "3D guidance (egograph detect --guide): among the above-threshold "

@@ -13,7 +13,8 @@ Sources (``frontend.proposals``):
   large planes removed, the rest clustered), found once per recording; in each frame the
   cluster points the PV camera sees (a ray cast against the mesh reaches them) are projected and
   boxed. Geometry cannot see these objects (the mesh explains them), however far or small.
-* ``image``: OpenCV graph segmentation of the downscaled frame, one box per segment.
+* ``image``: OpenCV graph segmentation of the downscaled frame, one box per segment; with
+  ``image_selective``, also the boxes of selective search's hierarchical grouping of segments.
 * an ONNX mask model by path: one box per predicted mask.
 
 :func:`nms` merges them per frame.
@@ -297,7 +298,9 @@ class MeshObjectProposals:
 class ImageProposals:
     """Boxes of OpenCV graph-segmentation segments (``cv2.ximgproc``, the contrib package), at one
     scale (``seg_k``) or several (``image_k_scales``); with ``image_per_scale`` each scale keeps its
-    most object-like segments (:func:`objectness`), which is then their confidence."""
+    most object-like segments (:func:`objectness`), which is then their confidence. With
+    ``image_selective``, also every box of OpenCV's selective search on the same downscaled frame
+    (:func:`selective_search_boxes`), its objectness as confidence."""
 
     def __init__(self, cfg: FrontendConfig):
         import cv2
@@ -340,7 +343,29 @@ class ImageProposals:
             else:
                 conf, order = np.full(len(ok), 0.5), np.arange(len(ok))
             out += [Proposal(tuple(float(v) for v in box[j] / s), "image", float(conf[j])) for j in order]
+        if self.cfg.image_selective != "none":
+            box = selective_search_boxes(bgr, self.cfg.image_selective)
+            conf = objectness(lab_sum if lab_sum is not None else integral_lab(small), box)
+            out += [Proposal(tuple(float(v) for v in b / s), "image", float(c)) for b, c in zip(box, conf)]
         return out
+
+
+def selective_search_boxes(bgr: np.ndarray, mode: str) -> np.ndarray:
+    """The boxes (N, 4: x1, y1, x2, y2, pixels of ``bgr``) of OpenCV's selective search on ``bgr``
+    (``cv2.ximgproc.segmentation``), ``mode`` 'single' or 'fast', sorted by their corners: OpenCV
+    returns the same set in a random order that changes from call to call, and the order must not
+    decide which box a tie in the cap keeps."""
+    import cv2
+
+    search = cv2.ximgproc.segmentation.createSelectiveSearchSegmentation()
+    search.setBaseImage(bgr)
+    if mode == "single":
+        search.switchToSingleStrategy()
+    else:
+        search.switchToSelectiveSearchFast()
+    r = np.asarray(search.process(), np.float64).reshape(-1, 4)   # x, y, w, h
+    box = np.unique(np.column_stack([r[:, 0], r[:, 1], r[:, 0] + r[:, 2], r[:, 1] + r[:, 3]]), axis=0)
+    return box
 
 
 def integral_lab(rgb: np.ndarray) -> np.ndarray:
