@@ -613,9 +613,10 @@ def _config_view(data: bytes, with_frontend: bool) -> bytes:
     return json.dumps(doc, sort_keys=True, default=str).encode()
 
 
-def _tree_files(rel: str, repo: Path, commit: str | None) -> dict[str, bytes] | None:
+def _tree_files(rel: str, repo: Path, commit: str | None, read) -> dict[str, bytes] | None:
     """The digest's files under ``rel`` (path -> bytes) in the working tree, or at ``commit`` (git);
-    None when ``rel`` does not exist."""
+    None when ``rel`` does not exist. ``read``: the working tree's reader (:func:`_reader`), shared
+    with the import closure so a digest reads each file once."""
     if commit is None:
         p = repo / rel
         if p.is_dir():
@@ -623,7 +624,7 @@ def _tree_files(rel: str, repo: Path, commit: str | None) -> dict[str, bytes] | 
                            and "__pycache__" not in f.parts)
         else:
             files = [p] if p.is_file() else []
-        return {f.relative_to(repo).as_posix(): f.read_bytes() for f in files} or None
+        return {name: read(name) for name in (f.relative_to(repo).as_posix() for f in files)} or None
     return _commit_files(str(repo), commit, rel)
 
 
@@ -671,11 +672,11 @@ def modules_digest(paths: tuple[str, ...] | list[str], repo: Path = REPO, *, sch
     gives the same digest in every clone."""
     h = hashlib.sha256()
     closure = None
+    read = _reader(repo, commit)
     if scheme >= 3:
-        closure = import_closure([p for p in paths if p.startswith("tools/") and p.endswith(".py")],
-                                 _reader(repo, commit))
+        closure = import_closure([p for p in paths if p.startswith("tools/") and p.endswith(".py")], read)
     for rel in paths:
-        files = _tree_files(rel, repo, commit)
+        files = _tree_files(rel, repo, commit, read)
         if not files:
             h.update(f"missing {rel}\0".encode())
             continue
