@@ -240,12 +240,11 @@ SECTIONS: tuple[Section, ...] = (
             "confidence of the stands, every other kind of answer's share within 0.25 m, the answers per kind, "
             "and the operating points at which each egograph tracker's P and R reach every baseline's, on "
             "tuning seeds only.",
-            f"{PY} tools/bench_confidence.py --world legacy --seeds 4 5 6 7 8 11 12 --frames 900 3000 --fit "
-            "--json-tag fit",
+            f"{PY} tools/bench_confidence.py --world legacy --seeds $(seq 4 20) --frames 900 3000 --fit --json-tag fit",
             quick=f"{PY} tools/bench_confidence.py --world legacy --seeds 4 5 --frames 900 --fit --json-tag fit",
             sizes=(("quick", "2 tuning recordings x 900 frames (seeds 4, 5)"),
-                   ("full", "7 tuning seeds (4-8, 11, 12) x 900 and 3000 frames: 14 recordings, the lengths of "
-                            "both held-out sets")),
+                   ("full", "17 tuning seeds (4-20) x 900 and 3000 frames: 34 recordings, the lengths of both "
+                            "held-out sets")),
             modules=BASE + SYNTH + LIFT + TRACK, quick_min=20),
     Section("bench_causal-fixed-scale", "Causal tracking without the online noise-scale fit",
             "The same as above with the detection sigmas as configured (`graph.noise.online_auto=false`).",

@@ -225,10 +225,12 @@ class FrontendConfig(Checked):
                                         "confidence: 'single' (one colour space, one strategy; 33 ms a frame), "
                                         "'fast' (two of each; 230 ms), 'none'. It finds objects the graph "
                                         "segments split in parts. Held-out proposal recall with "
-                                        "geometry+mesh+image (docs/frontend.md, stop 63): 'single' 61.7 / 73.6 / "
-                                        "76.7 % at a max_proposals of 12 / 24 / 48, against 64.2 / 68.9 / 69.4 % "
-                                        "without it: it pays from a cap of 24. Off by default until its effect on "
-                                        "the detections is measured (bench_frontend_trackers-device's variant)",
+                                        "geometry+mesh+image (docs/frontend.md, stop 63, AMD EPYC): 'single' 61.7 / "
+                                        "73.6 / 76.7 % at a max_proposals of 12 / 24 / 48, against 65.3 / 69.9 / "
+                                        "69.9 % without it. Off by default: end to end from pixels (verify=all, "
+                                        "max_proposals 24; bench_frontend_trackers-device's third row) it found "
+                                        "more instances but the graph on SVOE gained 0.2 points of R@0.25 for L2 "
+                                        "0.50 -> 0.74 m, on MVPE lost 7 points, and the front-end ran 40 % slower",
                                 choices=SELECTIVE_MODES)
     mask_threshold: float = knob(0.5, "ONNX mask model: a mask pixel belongs to the object at this "
                                       "probability or more", min=0.0, max=1.0)

@@ -364,8 +364,7 @@ def selective_search_boxes(bgr: np.ndarray, mode: str) -> np.ndarray:
     else:
         search.switchToSelectiveSearchFast()
     r = np.asarray(search.process(), np.float64).reshape(-1, 4)   # x, y, w, h
-    box = np.unique(np.column_stack([r[:, 0], r[:, 1], r[:, 0] + r[:, 2], r[:, 1] + r[:, 3]]), axis=0)
-    return box
+    return np.unique(np.column_stack([r[:, 0], r[:, 1], r[:, 0] + r[:, 2], r[:, 1] + r[:, 3]]), axis=0)
 
 
 def integral_lab(rgb: np.ndarray) -> np.ndarray:
