@@ -172,11 +172,11 @@ class PlacesConfig(Checked):
 
 
 # Calibration fitted on tuning seeds 4-20 at 900 and 3000 frames (34 recordings, SVOE and MVPE: the
-# lengths of both held-out sets) by tools/bench_confidence.py --fit (docs/bench/bench_confidence-fit.json): the
+# lengths of both held-out sets, generated on an AMD EPYC) by tools/bench_confidence.py --fit: the
 # stands' [raw, calibrated] knots (isotonic, each block at least the share of the answers that MIN_SHARE in
 # tools/bench_confidence.py gives its family and front-end) and the other kinds' confidences (graph.answers below). A
-# kind no tuning answer has (offline: put_down; smooth: unseen, last, put_down; noisy smooth: unseen, put_down)
-# has the share of all the family's answers. Refitted at stop 52: the knots before were fitted at 0feb345 on
+# kind no tuning answer has (offline: put_down; smooth: unseen, put_down; noisy smooth: put_down) has the
+# share of all the family's answers. Refitted at stop 52: the knots before were fitted at 0feb345 on
 # the 900-frame recordings only, before the closed-form switch solve (03262a4) changed the raw confidences
 # (docs/experiments.md). Refitted at stop 59, when (1) egograph smooth came to pick its knots by the scale of
 # the distinct sightings (egograph.track.smooth.sightings_scale), so the noisy_smooth_* knots had tuning
@@ -188,7 +188,11 @@ class PlacesConfig(Checked):
 # Refitted at stop 64 on 34 tuning recordings instead of 14 (seeds 9, 10 and 13-20 made for it; code unchanged),
 # each family's block share chosen again by leave-one-recording-out (MIN_SHARE): on the 12 held-out recordings
 # of 3000 frames the offline graph's SVOE ECE went 0.058 -> 0.033, on the demo's set (1-3, 301-303 x 900)
-# 0.045 -> 0.060 (docs/experiments.md, stop 64).
+# 0.045 -> 0.060 (docs/experiments.md, stop 64). The fit's record (docs/bench/bench_confidence-fit.json) was
+# made at stop 65 on an Intel Xeon from the same seeds generated there: the same kinds lack answers and the
+# operating points are the same, but the knots differ (e.g. causal's lowest level 0.4798 below, 0.5638 in the record;
+# noisy_causal's last 0.0334, 0.0141): the recordings differ with the CPU that generates them (docs/experiments.md,
+# stop 65).
 _OFFLINE_CALIBRATION = [[0.0, 0.9689], [0.406484, 0.9689], [0.755279, 0.9935], [1.0, 0.9935]]
 _NOISY_OFFLINE_CALIBRATION = [[0.0, 0.6562], [0.333428, 0.6562], [0.661877, 0.8457], [1.0, 0.8457]]
 _CAUSAL_CALIBRATION = [[0.0, 0.4798], [0.638176, 0.4798], [0.82278, 0.8804], [0.99392, 0.9133], [0.999433, 0.9781],
