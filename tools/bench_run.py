@@ -30,6 +30,12 @@ its tracks wait for it), and threads beyond Dask's one per worker: Open3D (ray c
 mesh in the lift and the graph's negative evidence) runs on TBB, which uses every core whatever
 OMP_NUM_THREADS says (Dask sets that and the BLAS ones to 1 in its workers), so one worker already
 uses more than one core part of the time; GTSAM's wheel here is built without TBB (one thread).
+Measured per thread at stop 65 (Intel Xeon), one worker's detect task: its own thread 30.2 s of CPU,
+the worker's event loop 2.1 s, and 2.4 s in threads gone by the end of the task: detect decodes the
+next PV image in a thread of its own while the frame's proposals and encoder run (TBB's threads, which
+outlive a task, held under 0.01 s). So one worker takes about 1.1 cores, and two workers on two cores
+find no core free for the extra tenth: task time 69 -> 80 s with the same CPU. The VM's two cores
+themselves ran two CPU-bound processes 1.96-1.97x one.
 Memory: each worker holds one sequence's observations and depth evidence, a few hundred MB at 3000
 frames; 2 workers need twice that.
 """
