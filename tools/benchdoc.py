@@ -29,7 +29,9 @@ The JSON file (``FORMAT``): ``tool``, ``command`` (as typed, from the repository
 variables that change speed, e.g. ``LP_NUM_THREADS``), ``egograph`` (version, git ``commit``,
 ``dirty``: tracked files other than docs/ and README.md differ from the commit), ``packages`` (the installed versions of egograph's
 dependencies and of Python: records made with other versions say so), ``machine`` (``nproc``, ``cpu_affinity``,
-``cpu``, ``memory_gb``, ``load_average`` at the start and the end), ``started`` (UTC),
+``cpu``, ``memory_gb``, ``load_average`` at the start and the end, ``cpu_id``: vendor, family, model
+and instruction sets, ``kernel_environment``: the variables that choose kernels, ``math_libraries``: the
+BLAS kernels chosen), ``started`` (UTC),
 ``wall_s``, ``items`` (tables and sentences in the order printed) and ``data`` (extra raw
 records a tool keeps, not rendered).
 
@@ -55,6 +57,11 @@ REPO = Path(__file__).resolve().parents[1]
 BENCH_DIR = REPO / "docs" / "bench"
 # Environment variables recorded with a run because they change what it measures.
 ENV_KEYS = ("LP_NUM_THREADS", "OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS", "EGOGRAPH_CACHE")
+KERNEL_ENV_PREFIXES = ("OPENBLAS_", "NPY_DISABLE_CPU_FEATURES", "NPY_ENABLE_CPU_FEATURES", "OPENCV_", "MKL_CBWR")
+"""Environment variables that choose which kernels compute a figure rather than how fast (OpenBLAS's
+core type and cache sizes, numpy's and OpenCV's dispatch, MKL's reproducibility mode): kept in the
+record's ``machine`` block beside the CPU's identity, not in its command line (some machines set
+OPENBLAS_CORETYPE and OPENBLAS_L2_SIZE for every process)."""
 NA = "n/a"
 
 _current: "Bench | None" = None
@@ -203,16 +210,60 @@ def revision() -> dict:
     return {"version": version, "commit": commit, "dirty": bool(status) if commit else None}
 
 
-def machine() -> dict:
-    """nproc, the CPUs this process may run on, CPU model, memory (GB), load average now."""
-    cpu = None
+ISA_FLAGS = ("sse4_2", "avx", "avx2", "fma", "fma4", "avx512f", "avx512dq", "avx512cd", "avx512bw", "avx512vl",
+             "avx512ifma", "avx512vbmi", "avx512vbmi2", "avx512_vnni", "avx512_bitalg", "avx512_vpopcntdq",
+             "avx512_bf16", "avx512_fp16", "avx512_vp2intersect", "avx_vnni", "amx_tile", "amx_bf16")
+"""The instruction-set flags a record names (of /proc/cpuinfo's): the libraries egograph calls pick
+their kernels by them (numpy's loops, OpenBLAS, OpenCV, Open3D's Embree and ISPC, onnxruntime's MLAS),
+and the benchmark figures have been seen to differ between CPUs (docs/experiments.md, stops 65-66)."""
+
+
+def cpu_identity(cpuinfo: str | None = None) -> dict:
+    """The CPU's model name, vendor, family, model and stepping, and which of :data:`ISA_FLAGS` it
+    has, from the first processor's block of ``cpuinfo`` (default: Linux's /proc/cpuinfo; {} where
+    there is none)."""
+    keys = {"model name": "cpu", "vendor_id": "vendor", "cpu family": "family", "model": "model",
+            "stepping": "stepping", "flags": "flags"}
+    if cpuinfo is None:
+        try:
+            cpuinfo = Path("/proc/cpuinfo").read_text()
+        except OSError:
+            return {}
+    out: dict = {}
+    for line in cpuinfo.splitlines():
+        if not line.strip() and out:   # the first processor's block is enough
+            break
+        name, _, value = line.partition(":")
+        key = keys.get(name.strip())
+        if key and key not in out:
+            out[key] = value.strip()
+    if not out:
+        return {}
+    flags = set(out.pop("flags", "").split())
+    for key in ("family", "model", "stepping"):
+        if str(out.get(key, "")).isdigit():
+            out[key] = int(out[key])
+    out["isa"] = [f for f in ISA_FLAGS if f in flags]
+    return out
+
+
+def math_libraries() -> list[dict]:
+    """The BLAS and OpenMP libraries loaded in this process with the kernels they chose
+    (threadpoolctl: OpenBLAS's ``architecture``, e.g. Haswell or SkylakeX) and their threads."""
     try:
-        for line in Path("/proc/cpuinfo").read_text().splitlines():
-            if line.startswith("model name"):
-                cpu = line.split(":", 1)[1].strip()
-                break
-    except OSError:
-        pass
+        from threadpoolctl import threadpool_info
+    except ImportError:
+        return []
+    keep = ("internal_api", "version", "architecture", "num_threads", "filepath")
+    return [{k: (Path(v).name if k == "filepath" else v) for k, v in info.items() if k in keep and v is not None}
+            for info in threadpool_info()]
+
+
+def machine() -> dict:
+    """nproc, the CPUs this process may run on, CPU model, memory (GB), load average now, and the
+    CPU's identity and instruction sets (:func:`cpu_identity`)."""
+    ident = cpu_identity()
+    cpu = ident.pop("cpu", None)
     mem = None
     try:
         for line in Path("/proc/meminfo").read_text().splitlines():
@@ -225,8 +276,10 @@ def machine() -> dict:
         affinity = sorted(os.sched_getaffinity(0))
     except AttributeError:  # pragma: no cover - not Linux
         affinity = None
+    kernel_env = {k: v for k, v in sorted(os.environ.items()) if k.startswith(KERNEL_ENV_PREFIXES)
+                  and k not in ENV_KEYS}
     return {"nproc": os.cpu_count(), "cpu_affinity": affinity, "cpu": cpu, "memory_gb": mem,
-            "load_average": [round(x, 2) for x in os.getloadavg()]}
+            "load_average": [round(x, 2) for x in os.getloadavg()], "cpu_id": ident, "kernel_environment": kernel_env}
 
 
 def tool_name(file: str | Path) -> str:
@@ -286,6 +339,7 @@ class Bench:
     def document(self) -> dict:
         m = dict(self.machine)
         m["load_average"] = {"start": m["load_average"], "end": [round(x, 2) for x in os.getloadavg()]}
+        m["math_libraries"] = math_libraries()   # at the end: the libraries the run loaded
         return {
             "format": FORMAT,
             "tool": self.tool,
