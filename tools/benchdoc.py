@@ -211,7 +211,7 @@ def revision() -> dict:
 
 
 ISA_FLAGS = ("sse4_2", "avx", "avx2", "fma", "fma4", "avx512f", "avx512dq", "avx512cd", "avx512bw", "avx512vl",
-             "avx512ifma", "avx512vbmi", "avx512vbmi2", "avx512_vnni", "avx512_bitalg", "avx512_vpopcntdq",
+             "avx512ifma", "avx512vbmi", "avx512_vbmi2", "avx512_vnni", "avx512_bitalg", "avx512_vpopcntdq",
              "avx512_bf16", "avx512_fp16", "avx512_vp2intersect", "avx_vnni", "amx_tile", "amx_bf16")
 """The instruction-set flags a record names (of /proc/cpuinfo's): the libraries egograph calls pick
 their kernels by them (numpy's loops, OpenBLAS, OpenCV, Open3D's Embree and ISPC, onnxruntime's MLAS),
