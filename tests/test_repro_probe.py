@@ -109,3 +109,16 @@ def test_every_record_names_the_cpu_and_the_blas_kernels(monkeypatch):
         assert m["cpu_id"]["vendor"] and isinstance(m["cpu_id"]["isa"], list)
     blas = [lib for lib in m["math_libraries"] if lib.get("internal_api") == "openblas"]
     assert blas and all(lib.get("architecture") for lib in blas)   # e.g. Haswell, SkylakeX
+
+
+def test_frontend_probe_repeats_itself_and_covers_every_proposal_source(device_rec):
+    first = repro_probe.frontend_digests(device_rec, step=50)
+    again = repro_probe.frontend_digests(device_rec, step=50)
+    assert first == again   # one machine repeats itself: what makes a difference between two mean something
+    assert [k for k in first if k.startswith("generate/")][-1] == "generate/pv"
+    assert first["generate/pv"].endswith("(150 files)")
+    # every source of SVOE's default proposals is digested on its own, then the chain after them
+    assert {"proposals/geometry", "proposals/mesh", "proposals/image"} <= set(first)
+    assert list(first)[-3:] == ["proposals/plausible", "proposals/rank", "proposals/kept at the cap"]
+    assert repro_probe.compare({"recordings": {"r": first}}, {"recordings": {"r": again}})[1] == \
+        f"r: all {len(first)} stages the same"

@@ -3,6 +3,7 @@
 
     .venv/bin/python tools/repro_probe.py [--seeds 1 2 3 301 302 303] [--frames 900] [--world legacy] [--json PATH]
     .venv/bin/python tools/repro_probe.py --compare docs/bench/oneoff/repro_probe-amd-epyc.json
+    .venv/bin/python tools/repro_probe.py --frontend --compare docs/bench/oneoff/repro_probe-frontend-amd-epyc.json
 
 The same code and seeds gave the demo set's SVOE graph ECE 0.060 on an AMD EPYC and 0.109 on an Intel
 Xeon (docs/experiments.md, stops 65-66), while each machine repeats its own figures to the byte. This
@@ -19,6 +20,10 @@ its own (``--cache``; the benchmark cache may hold recordings another machine ma
 4. ``track/<set>/<tracker>``: every answer and interval of ``memory``, ``kf`` (both liftings),
    ``memory+graph``, ``graph`` and ``graph-causal`` (as ``tools/bench_confidence.py`` runs them);
 5. ``eval/<set>/<tracker>``: the scored answers the curves and the ECE are made of.
+
+With ``--frontend``, on the device world's RGB recordings instead (by default the proposal recall
+benchmark's, seeds 21-26 at 300 frames, every 10th frame): the generator's files and PV frames, each
+proposal source's boxes, the plausible ones, their rank and the boxes kept at the cap.
 
 The record goes to ``docs/bench/oneoff/repro_probe[-TAG].json`` unless ``--json`` says otherwise
 (a one-off record, not a section of docs/benchmarks.md). ``--compare RECORD`` reads another run's
@@ -47,7 +52,7 @@ from egograph.steps.evaluate import evaluate
 from egograph.steps.recording import open_recording
 from egograph.steps.settings import EgographConfig
 from egograph.steps.track import track as track_step
-from egograph.synth.benchset import BENCH_WORLDS, benchmark_set, source_detections, world_config
+from egograph.synth.benchset import BENCH_WORLDS, benchmark_set, rgb_benchmark_set, source_detections, world_config
 from egograph.core.resources import default_config
 from egograph.track.registry import graph_with_scene
 from egograph.track.smooth import smooth_predictions
@@ -55,10 +60,10 @@ from egograph.track.smooth import smooth_predictions
 REPO = Path(__file__).resolve().parents[1]
 SETS = ("svoe", "mvpe")
 BASELINES = ("memory", "kf")
-GENERATOR_PARTS = {  # part -> path patterns under the recording's root (glob, sorted)
-    "poses": ["synth_seq/pv_pose.json", "synth_seq/depth_ahat_pose.json"],
-    "depth": ["synth_seq/depth_ahat/*"],
-    "mesh": ["synth_seq/mesh/*"],
+GENERATOR_PARTS = {  # part -> path patterns under the recording's root (glob, sorted; SEQ: its sequence folder)
+    "poses": ["SEQ/pv_pose.json", "SEQ/depth_ahat_pose.json"],
+    "depth": ["SEQ/depth_ahat/*"],
+    "mesh": ["SEQ/mesh/*"],
     "truth": ["synth_gt/**/*"],
     "detections": ["detections/**/*"],
     "annotations": ["annotations/**/*", "mvpe/**/*"],
@@ -118,6 +123,18 @@ def files_digest(root: Path, patterns: list[str]) -> tuple[str, int]:
     for p in files:
         h.update(p.relative_to(root).as_posix().encode() + b"\0" + p.read_bytes() + b"\0")
     return h.hexdigest()[:16], len(files)
+
+
+def generator_digests(root: Path, pv: bool = False) -> dict[str, str]:
+    """``generate/<part>`` -> the digest and count of the generator's files of each part of
+    :data:`GENERATOR_PARTS` (and with ``pv`` its PV frames) in the recording ``root``."""
+    seq = next((p.parent.name for p in sorted(root.glob("*/pv_pose.json"))), "synth_seq")
+    parts = {**GENERATOR_PARTS, **({"pv": ["SEQ/pv/*"]} if pv else {})}
+    out = {}
+    for part, patterns in parts.items():
+        d, n = files_digest(root, [pat.replace("SEQ", seq) for pat in patterns])
+        out[f"generate/{part}"] = f"{d} ({n} files)"
+    return out
 
 
 def result_digest(res) -> str:
@@ -184,10 +201,7 @@ def recording_digests(root: Path, lags: list[float]) -> dict[str, str]:
     """Every stage's digest of one recording, in pipeline order (generate, lift, track, eval)."""
     from egograph.geometry.lift import lift_recording
 
-    out: dict[str, str] = {}
-    for part, patterns in GENERATOR_PARTS.items():
-        d, n = files_digest(root, patterns)
-        out[f"generate/{part}"] = f"{d} ({n} files)"
+    out = generator_digests(root)
     cfg = load_config(EgographConfig, default_config(), [])
     rec = open_recording(root, cfg)
     results: dict = {}
@@ -211,6 +225,44 @@ def recording_digests(root: Path, lags: list[float]) -> dict[str, str]:
     for (det_set, name), res in results.items():
         a = evaluate(rec, res).sequences[rec.name].answers
         out[f"eval/{det_set}/{name}"] = digest([a.score, a.tp, a.n_gt])
+    return out
+
+
+def frontend_digests(root: Path, step: int) -> dict[str, str]:
+    """The front-end's stages on one device-world RGB recording, every ``step``-th PV frame: the
+    generator's PV frames, each proposal source's boxes (``frontend.proposals`` of SVOE, as ``detect``
+    makes them), those the plausibility test keeps, their rank (``frontend.proposal_order``) and the
+    boxes kept at the cap (``frontend.max_proposals``): where the proposal recall of
+    ``bench_detect-recall`` parted between machines (docs/frontend.md, stop 65)."""
+    from egograph.frontend.proposals import keep_plausible, nms, proposal_sources, rank_scores
+    from egograph.steps.detect import read_pv
+
+    out = generator_digests(root, pv=True)
+    cfg = load_config(EgographConfig, default_config(), [])
+    rec = open_recording(root, cfg)
+    fcfg = cfg.frontend
+    sources = proposal_sources(rec, fcfg, fcfg.proposals_for("svoe"))
+    raw: dict[str, list] = {}
+    plausible, ranks, kept = [], [], []
+    for i in range(0, len(rec), step):
+        rgb = read_pv(rec, i)
+        if rgb is None:
+            continue
+        props = []
+        for src in sources:
+            got = src(i, rgb)
+            for q in got:   # by the source each box names (geometry, mesh, image, ...)
+                raw.setdefault(q.source, []).append((i, tuple(map(float, q.box)), float(q.conf)))
+            props += keep_plausible(got, rgb.shape[:2], fcfg)
+        rank = rank_scores(props, rgb, fcfg)
+        plausible.append([(tuple(map(float, q.box)), q.source, float(q.conf)) for q in props])
+        ranks.append(np.zeros(0) if rank is None else np.asarray(rank, float))
+        kept.append([tuple(map(float, q.box)) for q in nms(props, fcfg.nms_iou, fcfg.max_proposals, rank)])
+    for name in sorted(raw):
+        out[f"proposals/{name}"] = f"{digest(raw[name])} ({len(raw[name])} boxes)"
+    out["proposals/plausible"] = digest(plausible)
+    out["proposals/rank"] = digest(ranks)
+    out["proposals/kept at the cap"] = digest(kept)
     return out
 
 
@@ -251,11 +303,26 @@ def main(argv: list[str] | None = None) -> int:
                     help="where the recordings are generated (a cache of the probe's own: never another "
                          "machine's recordings)")
     ap.add_argument("--compare", type=Path, metavar="RECORD", help="another run's JSON record to compare with")
+    ap.add_argument("--frontend", action="store_true",
+                    help="probe the front-end's proposals instead of the tracking chain, on device-world RGB "
+                         "recordings (default then: seeds 21-26 at 300 frames, the bench_detect-recall set)")
+    ap.add_argument("--step", type=int, default=10, help="--frontend: every this many PV frames (as the recall "
+                                                         "benchmark samples them)")
     ap.add_argument("--world", default="legacy", choices=BENCH_WORLDS,
                     help="generator world of the recordings (default legacy: the world of the records whose "
                          "figures parted between machines; device: photographic surfaces, the PV camera, hands)")
     benchdoc.add_arguments(ap, __file__)
     args = ap.parse_args(argv)
+    if args.frontend:   # the recall benchmark's recordings unless told otherwise
+        given = argv if argv is not None else sys.argv[1:]
+        if "--seeds" not in given:
+            args.seeds = [21, 22, 23, 24, 25, 26]
+        if "--frames" not in given:
+            args.frames = 300
+        if "--world" not in given:
+            args.world = "device"
+        if "--cache" not in given:
+            args.cache = REPO / ".cache" / "repro_probe_fe"
     if args.json is None:   # a one-off record, not a section of docs/benchmarks.md
         args.json = str(REPO / "docs" / "bench" / "oneoff" / f"repro_probe{'-' + args.json_tag if args.json_tag else ''}.json")
     other = None
@@ -268,10 +335,14 @@ def main(argv: list[str] | None = None) -> int:
     bench = benchdoc.start(__file__, args)
     t0 = time.perf_counter()
     libs = library_probes()
-    roots = benchmark_set(args.seeds, args.frames, config=world_config(args.world), cache=args.cache, progress=False)
+    if args.frontend:
+        roots = rgb_benchmark_set(args.seeds, args.frames, config=world_config(args.world), cache=args.cache)
+    else:
+        roots = benchmark_set(args.seeds, args.frames, config=world_config(args.world), cache=args.cache,
+                              progress=False)
     recs = {}
     for root in roots:
-        recs[root.name] = recording_digests(root, args.lags)
+        recs[root.name] = frontend_digests(root, args.step) if args.frontend else recording_digests(root, args.lags)
         print(f"{root.name}: {len(recs[root.name])} stages digested ({time.perf_counter() - t0:.0f} s)", flush=True)
     bench.data = {"libraries": libs, "recordings": recs}
     benchdoc.table("Library kernels that choose their code by the CPU: digests of fixed inputs",
