@@ -295,41 +295,41 @@ def compare(mine: dict, theirs: dict) -> list[str]:
 
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    ap.add_argument("--seeds", type=int, nargs="+", default=[1, 2, 3, 301, 302, 303],
-                    help="recordings to probe (default: the demo's held-out set, where the figures parted)")
-    ap.add_argument("--frames", type=int, default=900)
+    ap.add_argument("--seeds", type=int, nargs="+",
+                    help="recordings to probe (default: the demo's held-out set 1 2 3 301 302 303, where the "
+                         "figures parted; with --frontend the recall benchmark's 21-26)")
+    ap.add_argument("--frames", type=int, help="PV frames per recording (default 900; with --frontend 300)")
     ap.add_argument("--lags", type=float, nargs="+", default=[0.0])
-    ap.add_argument("--cache", type=Path, default=REPO / ".cache" / "repro_probe",
-                    help="where the recordings are generated (a cache of the probe's own: never another "
-                         "machine's recordings)")
+    ap.add_argument("--cache", type=Path,
+                    help="where the recordings are generated (default .cache/repro_probe, with --frontend "
+                         ".cache/repro_probe_fe: a cache of the probe's own, never another machine's recordings)")
     ap.add_argument("--compare", type=Path, metavar="RECORD", help="another run's JSON record to compare with")
     ap.add_argument("--frontend", action="store_true",
                     help="probe the front-end's proposals instead of the tracking chain, on device-world RGB "
                          "recordings (default then: seeds 21-26 at 300 frames, the bench_detect-recall set)")
     ap.add_argument("--step", type=int, default=10, help="--frontend: every this many PV frames (as the recall "
                                                          "benchmark samples them)")
-    ap.add_argument("--world", default="legacy", choices=BENCH_WORLDS,
-                    help="generator world of the recordings (default legacy: the world of the records whose "
-                         "figures parted between machines; device: photographic surfaces, the PV camera, hands)")
+    ap.add_argument("--world", choices=BENCH_WORLDS,
+                    help="generator world of the recordings (default legacy, the world of the records whose "
+                         "figures parted between machines; with --frontend device: photographic surfaces, the PV "
+                         "camera, hands)")
     benchdoc.add_arguments(ap, __file__)
     args = ap.parse_args(argv)
-    if args.frontend:   # the recall benchmark's recordings unless told otherwise
-        given = argv if argv is not None else sys.argv[1:]
-        if "--seeds" not in given:
-            args.seeds = [21, 22, 23, 24, 25, 26]
-        if "--frames" not in given:
-            args.frames = 300
-        if "--world" not in given:
-            args.world = "device"
-        if "--cache" not in given:
-            args.cache = REPO / ".cache" / "repro_probe_fe"
+    # what is not given: the demo's held-out set, or with --frontend the recall benchmark's recordings
+    fe = args.frontend
+    args.seeds = args.seeds or ([21, 22, 23, 24, 25, 26] if fe else [1, 2, 3, 301, 302, 303])
+    args.frames = args.frames or (300 if fe else 900)
+    args.world = args.world or ("device" if fe else "legacy")
+    args.cache = args.cache or REPO / ".cache" / ("repro_probe_fe" if fe else "repro_probe")
     if args.json is None:   # a one-off record, not a section of docs/benchmarks.md
         args.json = str(REPO / "docs" / "bench" / "oneoff" / f"repro_probe{'-' + args.json_tag if args.json_tag else ''}.json")
-    other = None
+    theirs = None
     if args.compare is not None:
         try:
-            other = json.loads(args.compare.read_text())["data"]
-        except (OSError, ValueError, KeyError) as exc:
+            theirs = json.loads(args.compare.read_text())
+            if not isinstance(theirs, dict) or "data" not in theirs:
+                raise ValueError("not a record of this tool (no 'data')")
+        except (OSError, ValueError) as exc:
             print(f"repro_probe: cannot read the record to compare with, {args.compare}: {exc}", file=sys.stderr)
             return 2
     bench = benchdoc.start(__file__, args)
@@ -357,12 +357,11 @@ def main(argv: list[str] | None = None) -> int:
                               if m.get("internal_api") == "openblas")
                   + "; kernel environment: "
                   + (", ".join(f"{k}={v}" for k, v in here.get("kernel_environment", {}).items()) or "none"))
-    if other is not None:
-        theirs = json.loads(args.compare.read_text())
+    if theirs is not None:
         m = theirs.get("machine", {})
         benchdoc.text(f"Compared with {args.compare} (CPU: {m.get('cpu')}, {m.get('cpu_id', {}).get('vendor')} "
                       f"family {m.get('cpu_id', {}).get('family')} model {m.get('cpu_id', {}).get('model')}):\n"
-                      + "\n".join("- " + line for line in compare(bench.data, other)))
+                      + "\n".join("- " + line for line in compare(bench.data, theirs["data"])))
     benchdoc.finish()
     return 0
 
