@@ -22,8 +22,8 @@ from egograph.frontend import effnet  # noqa: E402
 from egograph.frontend.config import FrontendConfig  # noqa: E402
 from egograph.frontend.encoder import OnnxEncoder, Preprocess, load_encoder  # noqa: E402
 from egograph.frontend.matching import Enrollment, autocrop, crop, pick, svoe_views  # noqa: E402
-from egograph.frontend.proposals import (ImageProposals, MaskModelProposals, Proposal, iou, iou_matrix, nms,  # noqa: E402
-                                         rank_scores)
+from egograph.frontend.proposals import (ImageProposals, MaskModelProposals, Proposal, frame_proposals,  # noqa: E402
+                                         iou, iou_matrix, nms, rank_scores)
 
 MILITARY_UNIFORM = 652      # ImageNet class ids
 LAKESIDE, BOATHOUSE, PALACE, CASTLE = 975, 449, 698, 483
@@ -275,6 +275,22 @@ def test_nms_prefers_geometry_and_keeps_separate_boxes():
     assert [p.source for p in kept] == ["geometry", "image"] and kept[1] is c
     assert len(nms([a, b, c], 0.99, 10)) == 3 and len(nms([a, b, c], 0.6, 1)) == 1
     assert iou((0, 0, 10, 10), (5, 0, 15, 10)) == pytest.approx(1 / 3)
+
+
+def test_frame_proposals_keep_each_sources_boxes_and_the_plausible_ones():
+    """One frame's proposals as detect, the recall benchmark and the probe read them: every source's
+    boxes as it gave them, and the plausible ones (clipped to the image; too small or too large
+    dropped) source after source."""
+    rgb = np.zeros((100, 200, 3), np.uint8)
+    geo = [Proposal((-10, 10, 40, 60), "geometry", 1.0), Proposal((50, 50, 55, 55), "geometry", 1.0)]
+    img = [Proposal((0, 0, 200, 100), "image", 0.5), Proposal((100, 20, 150, 90), "image", 0.4)]
+    seen = []
+    sources = [lambda i, rgb: seen.append(i) or geo, lambda i, rgb: img]
+    cfg = FrontendConfig(min_box_px=8, max_box_share=0.5)
+    raw, plausible = frame_proposals(sources, 7, rgb, cfg)
+    assert raw == [geo, img] and seen == [7]
+    assert [(p.box, p.source) for p in plausible] == [((0.0, 10.0, 40.0, 60.0), "geometry"),
+                                                      ((100.0, 20.0, 150.0, 90.0), "image")]
 
 
 def test_the_cap_keeps_the_small_object_before_wall_and_range_noise():

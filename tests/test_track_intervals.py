@@ -97,7 +97,7 @@ def test_smoothing_a_tracker_that_repeats_its_sightings_calibrates_by_their_scat
     clean, noisy_conf = 0.2, 0.7   # every answer's confidence under each set of knots and kinds
     answers = dataclasses.replace(AnswersConfig(), smooth_calibration=[[0.0, clean], [1.0, clean]],
                                   noisy_smooth_calibration=[[0.0, noisy_conf], [1.0, noisy_conf]],
-                                  smooth_kinds=[clean] * 4, noisy_smooth_kinds=[noisy_conf] * 4)
+                                  smooth_kinds=[clean] * 5, noisy_smooth_kinds=[noisy_conf] * 5)
     cfg = GraphConfig(negative_evidence=False, answers=answers)
     res = smooth_predictions(rec, per_frame, cfg)
     assert res.metadata["noise_scale"] < cfg.answers.noisy_scale          # the copies' scale: the floor

@@ -317,25 +317,29 @@ def test_a_glimpse_at_another_instances_stand_is_a_confusion(exclusion):
         assert min(inst1) <= 303 and np.linalg.norm(np.subtract(inst1[400], A)) < 0.05
 
 
-def test_an_instance_whose_every_place_is_claimed_answers_its_newest_detection():
+@pytest.mark.parametrize("near", [False, True])
+def test_an_instance_whose_every_place_is_claimed_answers_its_newest_detection(near):
     """Instance 1 matched five times at instance 0's place (a look-alike) has that one place, claimed
     by instance 0: until it is seen at its own place it answers its newest detection with the
     confidence of that kind (graph.answers.causal_kinds: last), not the claimed place with the
-    confidence of an unseen object standing there."""
+    confidence of an unseen object standing there; of the kind held when those five were seen from
+    under held_range_m (``near``: the object in the hand, which says nothing of where it stands)."""
     rng = np.random.default_rng(6)
     rows = [(f, 0, A + 0.02 * rng.standard_normal(3), 0.8) for f in range(30, 400, 3)]
     rows += [(f, 1, A + 0.03 * rng.standard_normal(3), 0.9) for f in range(300, 315, 3)]
     rows += [(500, 1, B, 0.9), (503, 1, B, 0.9)]
-    kinds = [0.41, 0.42, 0.43, 0.44]   # unseen, hand, last, put_down
+    kinds = [0.41, 0.42, 0.43, 0.44, 0.45]   # unseen, hand, last, put_down, held
     answers = dataclasses.replace(AnswersConfig(), causal_kinds=kinds, noisy_causal_kinds=kinds)
     obs = make_obs(rows)
+    if near:
+        obs.range_m[(obs.instance == 1) & (obs.frame < 400)] = 0.3
     trk = OnlineTracker(GraphConfig(negative_evidence=False, answers=answers, exclusion_radius_m=0.15), T0)
     inst1 = {}
     for f, ts in enumerate(stamps()):
         inst1[f] = [p for p in trk.step(f, int(ts), obs.select(obs.frame == f)) if p.instance == 1]
     newest = obs.world[(obs.instance == 1) & (obs.frame == 312)][0]
     for f in (320, 400, 480):
-        assert len(inst1[f]) == 1 and inst1[f][0].score == pytest.approx(0.43)
+        assert len(inst1[f]) == 1 and inst1[f][0].score == pytest.approx(0.45 if near else 0.43)
         assert np.allclose(inst1[f][0].xyz, newest)
     assert np.linalg.norm(np.subtract(inst1[510][0].xyz, B)) < 0.01 and inst1[510][0].score > 0.5
 

@@ -27,7 +27,9 @@ from __future__ import annotations
 
 import argparse
 import json
+import multiprocessing
 import time
+from concurrent.futures import ProcessPoolExecutor
 from pathlib import Path
 
 import benchdoc
@@ -51,8 +53,8 @@ REPO = Path(__file__).resolve().parents[1]
 BASELINES = ("memory", "kf")
 FIT_KNOTS = [[0.0, 0.0], [1.0, 0.5]]
 """--fit: a stand's confidence is half its raw value (raw = 2 x confidence, in [0, 0.5]) ..."""
-FIT_KINDS = [0.6, 0.7, 0.8, 0.9]
-"""... and every other kind (unseen, hand, last, put_down) one of these, above every stand's."""
+FIT_KINDS = [0.6, 0.7, 0.8, 0.9, 0.95]
+"""... and every other kind (unseen, hand, last, put_down, held) one of these, above every stand's."""
 MIN_SHARE = {"offline": 0.3, "noisy_offline": 0.3, "causal": 0.02, "noisy_causal": 0.1, "smooth": 0.05,
              "noisy_smooth": 0.05}
 """--fit: per family and front-end, the smallest share of its stand answers one block of the isotonic
@@ -311,6 +313,8 @@ def main() -> None:
                     help="--fit: each block of the stands' isotonic fit of NAME (offline, noisy_offline, causal, ...) "
                          "holds at least this share of its answers (default MIN_SHARE)")
     ap.add_argument("--out", type=Path, help="also write every figure (curves' APs, reliability, knots) here as JSON")
+    ap.add_argument("--jobs", type=int, default=1, help="recordings run in this many worker processes at once (the "
+                                                        "figures do not depend on it)")
     benchdoc.add_arguments(ap, __file__)
     args = ap.parse_args()
     benchdoc.start(__file__, args)
@@ -321,7 +325,12 @@ def main() -> None:
     # one length: recordings named by seed (the records' keys as before); several: seed@frames
     names = list(args.seeds) if len(args.frames) == 1 else [f"{s}@{f}" for f in args.frames for s in args.seeds]
     frames = args.frames[0] if len(args.frames) == 1 else args.frames
-    parts = [run_recording(r, args.overrides, args.lags, args.fit) for r in roots]
+    if args.jobs > 1:  # recordings are independent: each in a worker process, pooled in their order
+        with ProcessPoolExecutor(args.jobs, mp_context=multiprocessing.get_context("spawn")) as pool:
+            n = len(roots)
+            parts = list(pool.map(run_recording, roots, [args.overrides] * n, [args.lags] * n, [args.fit] * n))
+    else:
+        parts = [run_recording(r, args.overrides, args.lags, args.fit) for r in roots]
     cfg = load_config(EgographConfig, default_config(), args.overrides)
     doc = {"seeds": args.seeds, "frames": frames, "lags": args.lags, "overrides": args.overrides}
     if args.fit:

@@ -140,7 +140,7 @@ def proposal_recall(rec, cfg, source_name: str, caps: list[int], step: int) -> d
     instances per band...]``, and under ``"setup"`` the CPU seconds making the sources (the mesh
     segmentation). Instances: at least half visible, true box short side >= 24 px;
     covered: some proposal (as ``detect`` makes them: plausible boxes, NMS, the cap) at IoU >= 0.5."""
-    from egograph.frontend.proposals import iou, keep_plausible, nms, proposal_sources, rank_scores
+    from egograph.frontend.proposals import frame_proposals, iou, nms, proposal_sources, rank_scores
     from egograph.steps.detect import read_pv
 
     with np.load(rec.synth_gt_dir / "instances.npz") as gt:
@@ -157,9 +157,7 @@ def proposal_recall(rec, cfg, source_name: str, caps: list[int], step: int) -> d
         rgb = read_pv(rec, i)
         if rgb is None:
             continue
-        props = []
-        for src in sources:
-            props += keep_plausible(src(i, rgb), rgb.shape[:2], cfg.frontend)
+        _, props = frame_proposals(sources, i, rgb, cfg.frontend)
         want = [b for b, v in zip(boxes[i], visible[i]) if v >= 0.5 and np.isfinite(b[0])
                 and min(b[2] - b[0], b[3] - b[1]) >= 24]
         n_inst += len(want)

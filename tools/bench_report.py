@@ -216,7 +216,8 @@ SECTIONS: tuple[Section, ...] = (
             "calibration error at 0.25 m. Held out: the calibration and the operating point were fitted on tuning "
             "seeds (`--fit`). The demo's seeds 1-3 and held-out 301-303, all at 900 frames; the issue's 12 "
             "held-out recordings of 3000 frames are the next section.",
-            f"{PY} tools/bench_confidence.py --world legacy --seeds 1 2 3 301 302 303 --frames 900 --json-tag heldout",
+            f"{PY} tools/bench_confidence.py --world legacy --seeds 1 2 3 301 302 303 --frames 900 --jobs 2 "
+            "--json-tag heldout",
             quick=f"{PY} tools/bench_confidence.py --world legacy --seeds 1 301 --frames 900 --json-tag heldout",
             sizes=CONFIDENCE_SIZES, modules=BASE + SYNTH + LIFT + TRACK, quick_min=20),
     Section("bench_confidence-heldout12", "Answers with a confidence: the issue's held-out set at full length",
@@ -224,7 +225,7 @@ SECTIONS: tuple[Section, ...] = (
             "301-312, legacy world, lag 0), none of which any knob of the calibration or the operating point "
             "was chosen on: pooled and per-recording curves against every baseline's point, P and R at the "
             "default operating point, reliability and ECE.",
-            f"{PY} tools/bench_confidence.py --world legacy --seeds {HELD_OUT_12} --frames 3000 --json-tag heldout12",
+            f"{PY} tools/bench_confidence.py --world legacy --seeds {HELD_OUT_12} --frames 3000 --jobs 2 --json-tag heldout12",
             quick=f"{PY} tools/bench_confidence.py --world legacy --seeds {QUICK_HELD_OUT} --frames 1000 "
             "--json-tag heldout12",
             sizes=HELD_OUT_12_SIZES, modules=BASE + SYNTH + LIFT + TRACK, quick_min=2),
@@ -240,7 +241,7 @@ SECTIONS: tuple[Section, ...] = (
             "confidence of the stands, every other kind of answer's share within 0.25 m, the answers per kind, "
             "and the operating points at which each egograph tracker's P and R reach every baseline's, on "
             "tuning seeds only.",
-            f"{PY} tools/bench_confidence.py --world legacy --seeds $(seq 4 20) --frames 900 3000 --fit --json-tag fit",
+            f"{PY} tools/bench_confidence.py --world legacy --seeds $(seq 4 20) --frames 900 3000 --fit --jobs 2 --json-tag fit",
             quick=f"{PY} tools/bench_confidence.py --world legacy --seeds 4 5 --frames 900 --fit --json-tag fit",
             sizes=(("quick", "2 tuning recordings x 900 frames (seeds 4, 5)"),
                    ("full", "17 tuning seeds (4-20) x 900 and 3000 frames: 34 recordings, the lengths of both "

@@ -234,7 +234,7 @@ def frontend_digests(root: Path, step: int) -> dict[str, str]:
     makes them), those the plausibility test keeps, their rank (``frontend.proposal_order``) and the
     boxes kept at the cap (``frontend.max_proposals``): where the proposal recall of
     ``bench_detect-recall`` parted between machines (docs/frontend.md, stop 65)."""
-    from egograph.frontend.proposals import keep_plausible, nms, proposal_sources, rank_scores
+    from egograph.frontend.proposals import frame_proposals, nms, proposal_sources, rank_scores
     from egograph.steps.detect import read_pv
 
     out = generator_digests(root, pv=True)
@@ -248,12 +248,9 @@ def frontend_digests(root: Path, step: int) -> dict[str, str]:
         rgb = read_pv(rec, i)
         if rgb is None:
             continue
-        props = []
-        for src in sources:
-            got = src(i, rgb)
-            for q in got:   # by the source each box names (geometry, mesh, image, ...)
-                raw.setdefault(q.source, []).append((i, tuple(map(float, q.box)), float(q.conf)))
-            props += keep_plausible(got, rgb.shape[:2], fcfg)
+        each, props = frame_proposals(sources, i, rgb, fcfg)
+        for q in (q for got in each for q in got):   # by the source each box names (geometry, mesh, image, ...)
+            raw.setdefault(q.source, []).append((i, tuple(map(float, q.box)), float(q.conf)))
         rank = rank_scores(props, rgb, fcfg)
         plausible.append([(tuple(map(float, q.box)), q.source, float(q.conf)) for q in props])
         ranks.append(np.zeros(0) if rank is None else np.asarray(rank, float))

@@ -72,6 +72,15 @@ def keep_plausible(props: list[Proposal], shape: tuple[int, int], cfg: FrontendC
     return out
 
 
+def frame_proposals(sources: list, i: int, rgb: np.ndarray, cfg: FrontendConfig
+                    ) -> tuple[list[list[Proposal]], list[Proposal]]:
+    """PV frame ``i``'s proposals as ``detect`` makes them, before the ranking and the cap: each
+    source's boxes (``sources`` from :func:`proposal_sources`, in their order) and the plausible ones
+    of them all (:func:`keep_plausible`, source after source)."""
+    raw = [src(i, rgb) for src in sources]
+    return raw, [q for got in raw for q in keep_plausible(got, rgb.shape[:2], cfg)]
+
+
 def nms(props: list[Proposal], iou_max: float, limit: int, rank: np.ndarray | None = None) -> list[Proposal]:
     """Greedy non-maximum suppression, at most ``limit`` kept: higher ``rank`` first (one per
     proposal, :func:`rank_scores`; ties keep the list's order), or without it geometry first, then

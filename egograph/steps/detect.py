@@ -470,13 +470,11 @@ class FrameDetector:
 
     def _embed_proposals(self, i: int, rgb: np.ndarray) -> tuple[list, np.ndarray]:
         from egograph.frontend.matching import crop
-        from egograph.frontend.proposals import keep_plausible, nms, rank_scores
+        from egograph.frontend.proposals import frame_proposals, nms, rank_scores
 
         cfg, sec = self.cfg, self.report.seconds
         t0 = time.perf_counter()
-        props = []
-        for src in self.sources:
-            props += keep_plausible(src(i, rgb), rgb.shape[:2], cfg)
+        _, props = frame_proposals(self.sources, i, rgb, cfg)
         props = nms(props, cfg.nms_iou, cfg.max_proposals, rank_scores(props, rgb, cfg))
         t1 = time.perf_counter()
         crops, kept = [], []

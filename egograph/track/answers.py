@@ -34,14 +34,17 @@ from egograph.core.types import Prediction, predictions_of
 from egograph.track.config import AnswersConfig, GraphConfig
 from egograph.track.places import UNSEEN_STATE, stand_state, state_kind
 
-STAND, UNSEEN, HAND, LAST, PUT_DOWN = range(5)
-ANSWER_KINDS = ("stand", "unseen", "hand", "last", "put_down")
+STAND, UNSEEN, HAND, LAST, PUT_DOWN, HELD = range(6)
+ANSWER_KINDS = ("stand", "unseen", "hand", "last", "put_down", "held")
 """Answer kinds (codes index this tuple; ``graph.answers.*_kinds`` list the confidences of the
 kinds after the first, in this order): a stand at a
 place (an interval's, or off the intervals the most probable place); unseen (a place the object is
 not on the chain's path to: the best place, or the hand's last position); the hand while carried;
 the newest (offline: nearest in time) detection of an instance with no place; where the hand let go
-(graph-causal, ``put_down_after_s`` after the last detection in hand)."""
+(graph-causal, ``put_down_after_s`` after the last detection in hand); a `last` answer whose support
+was seen only from close by (:func:`held_rows`: the object was in the hand, and a detection in the
+hand says nothing of where it stands: on the 17 tuning recordings at 900 frames none of 14,120 such
+answers was within 0.25 m, against 7-29 % of the other `last` answers; docs/experiments.md, stop 66)."""
 
 HAND_RAW = 0.0
 """Raw confidence of an answer at the hand while carried (its calibrated confidence: the kind's)."""
@@ -132,6 +135,36 @@ def _merge(blocks: list[list[float]], k: int) -> None:
         blocks[k][i] += c[i]
 
 
+def support_ranges(world: np.ndarray, range_m: np.ndarray, at: np.ndarray, radius: float,
+                   block: int = 64) -> np.ndarray:
+    """Per row of ``at`` (indices into ``world``), the median range from the depth camera (metres) of
+    the detections ``world`` (M, 3) within ``radius`` metres of that row's point (the row among them;
+    ranges that are not finite left out, NaN when none is): how close by the answer's support was
+    seen. Blocks of ``block`` rows keep the distance matrix small on an instance with thousands of
+    detections."""
+    world = np.asarray(world, float)
+    range_m = np.asarray(range_m, float)
+    out = np.full(len(at), np.nan)
+    for s in range(0, len(at), block):
+        rows = np.asarray(at[s:s + block], np.int64)
+        d2 = ((world[None, :, :] - world[rows][:, None, :]) ** 2).sum(axis=2)
+        near = np.sort(np.where(d2 <= radius * radius, range_m[None, :], np.nan), axis=1)  # NaN sorts last
+        n = np.isfinite(near).sum(axis=1)
+        lo, hi = np.maximum((n - 1) // 2, 0)[:, None], (n // 2)[:, None]
+        med = (np.take_along_axis(near, lo, 1) + np.take_along_axis(near, hi, 1))[:, 0] / 2
+        out[s:s + block] = np.where(n > 0, med, np.nan)
+    return out
+
+
+def held_rows(world: np.ndarray, range_m: np.ndarray, at: np.ndarray, cfg: AnswersConfig) -> np.ndarray:
+    """Whether each row of ``at`` (indices into the instance's detections ``world``, ``range_m``) would
+    be answered as HELD rather than LAST: the detections within ``distance_m`` of it were seen from
+    a median range under ``held_range_m`` (metres)."""
+    if cfg.held_range_m <= 0 or not len(at):
+        return np.zeros(len(at), bool)
+    return support_ranges(world, range_m, at, cfg.distance_m) < cfg.held_range_m
+
+
 def _nearest(frames: np.ndarray, at: np.ndarray) -> np.ndarray:
     """Index into sorted ``frames`` of the one nearest each of ``at`` (ties: the earlier)."""
     i = np.clip(np.searchsorted(frames, at), 1, max(len(frames) - 1, 1))
@@ -150,8 +183,9 @@ def offline_answers(sol, path: np.ndarray | None, post: np.ndarray | None, reali
     nearest detection in hand (raw ``HAND_RAW``); any other frame the place of largest posterior
     times reality (raw: that product, times ``EMPTY_FACTOR`` at a place depth showed empty). Without
     places, the nearest detection in time (raw ``LAST_RAW``). Kinds: an interval at a place and the
-    most probable place STAND, an UNSEEN interval UNSEEN, a carried frame HAND, no places LAST. Rows
-    NaN when the instance has no detection."""
+    most probable place STAND, an UNSEEN interval UNSEEN, a carried frame HAND, no places LAST, or
+    HELD where that detection's support was seen from close by (:func:`held_rows`). Rows NaN when
+    the instance has no detection."""
     xyz = np.full((n_frames, 3), np.nan)
     raw = np.zeros(n_frames)
     kind = np.full(n_frames, STAND, np.int64)
@@ -163,9 +197,13 @@ def offline_answers(sol, path: np.ndarray | None, post: np.ndarray | None, reali
     places = sol.places or []
     k = len(places)
     if post is None or k == 0:
-        xyz[:] = sol.world[order][_nearest(frames[order], t)]
+        row = order[_nearest(frames[order], t)]
+        xyz[:] = sol.world[row]
         raw[:] = LAST_RAW
         kind[:] = LAST
+        if sol.range_m is not None:
+            answered, inverse = np.unique(row, return_inverse=True)
+            kind[held_rows(sol.world, sol.range_m, answered, cfg.answers)[inverse]] = HELD
         return xyz, raw, kind
     real = np.asarray(reality, float)
     stand = post[:, [stand_state(j) for j in range(k)]] * real[None, :]

@@ -203,12 +203,12 @@ _SMOOTH_CALIBRATION = [[0.0, 0.8], [0.485373, 0.8], [0.5, 0.8673], [1.0, 0.8673]
 _NOISY_SMOOTH_CALIBRATION = [[0.0, 0.2204], [0.174088, 0.2204], [0.480887, 0.3386], [0.499999, 0.3509], [0.5, 0.4114],
     [1.0, 0.4114]]
 
-_KINDS = {"offline": [1.0, 0.0185, 0.2063, 0.9171],
-          "noisy_offline": [0.7069, 0.0355, 0.1495, 0.6995],
-          "causal": [0.3828, 0.0761, 0.0938, 0.7915],
-          "noisy_causal": [0.3509, 0.0215, 0.0334, 0.1653],
-          "smooth": [0.8161, 0.0, 0.0, 0.8161],
-          "noisy_smooth": [0.1277, 0.1207, 0.39, 0.3698]}
+_KINDS = {"offline": [1.0, 0.0185, 0.2063, 0.9171, 0.0],
+          "noisy_offline": [0.7069, 0.0355, 0.1495, 0.6995, 0.0],
+          "causal": [0.3828, 0.0761, 0.0938, 0.7915, 0.0],
+          "noisy_causal": [0.3509, 0.0215, 0.0334, 0.1653, 0.0],
+          "smooth": [0.8161, 0.0, 0.0, 0.8161, 0.0],
+          "noisy_smooth": [0.1277, 0.1207, 0.39, 0.3698, 0.0]}
 
 
 @dataclass
@@ -238,6 +238,13 @@ class AnswersConfig(Checked):
                                         min=0.0, max=1.0)
     distance_m: float = knob(0.25, "the confidence is the probability that the answer lies within this distance "
                                    "of the truth (what the calibration below was fitted for), metres", gt=0.0)
+    held_range_m: float = knob(0.45, "an answer at an instance's newest (offline: nearest in time) detection whose "
+                                     "support (the instance's detections within distance_m of it) was seen from a "
+                                     "median range under this is of the kind held, not last: the object was in the "
+                                     "hand, which says nothing of where it stands (egograph.track.answers.held_rows). "
+                                     "About half an arm's length, set before it was measured (carry_range_m is 0.9): "
+                                     "on the tuning recordings none of those answers was within 0.25 m. 0: no held "
+                                     "kind (its answers are last), metres", min=0.0)
     offline_calibration: list = knob(_OFFLINE_CALIBRATION,
                                      "offline graph: the raw confidence of an answer at a stand -> calibrated, as "
                                      "[raw, calibrated] knots joined linearly (an isotonic fit on tuning recordings: "
@@ -262,19 +269,19 @@ class AnswersConfig(Checked):
                                           "sightings_scale)")
     offline_kinds: list = knob(_KINDS["offline"],
                                "offline graph: the confidence of its answers that are not at a stand, per kind: "
-                               "[unseen, hand, last, put_down] (egograph.track.answers.ANSWER_KINDS; the share "
+                               "[unseen, hand, last, put_down, held] (egograph.track.answers.ANSWER_KINDS; the share "
                                "of such answers within distance_m on the tuning recordings, tools/bench_confidence.py "
                                "--fit: their raw value carries no evidence of being right, and one monotone map with "
                                "the stands' pooled kinds that are right at very different rates)",
-                               min=0.0, max=1.0, length=4)
-    causal_kinds: list = knob(_KINDS["causal"], "graph-causal: as offline_kinds", min=0.0, max=1.0, length=4)
-    smooth_kinds: list = knob(_KINDS["smooth"], "egograph smooth: as offline_kinds", min=0.0, max=1.0, length=4)
+                               min=0.0, max=1.0, length=5)
+    causal_kinds: list = knob(_KINDS["causal"], "graph-causal: as offline_kinds", min=0.0, max=1.0, length=5)
+    smooth_kinds: list = knob(_KINDS["smooth"], "egograph smooth: as offline_kinds", min=0.0, max=1.0, length=5)
     noisy_offline_kinds: list = knob(_KINDS["noisy_offline"], "offline_kinds of a noisy front-end", min=0.0, max=1.0,
-                                     length=4)
+                                     length=5)
     noisy_causal_kinds: list = knob(_KINDS["noisy_causal"], "causal_kinds of a noisy front-end", min=0.0, max=1.0,
-                                    length=4)
+                                    length=5)
     noisy_smooth_kinds: list = knob(_KINDS["noisy_smooth"], "smooth_kinds of a noisy front-end", min=0.0, max=1.0,
-                                    length=4)
+                                    length=5)
 
     def knots(self, family: str, scale: float) -> list:
         """The calibration knots of tracker ``family``'s stands (offline, causal, smooth) at detection
@@ -282,8 +289,8 @@ class AnswersConfig(Checked):
         return getattr(self, f"{'noisy_' if scale >= self.noisy_scale else ''}{family}_calibration")
 
     def kinds(self, family: str, scale: float) -> list:
-        """The confidences of tracker ``family``'s answers of kinds unseen, hand, last, put_down (in
-        this order; egograph.track.answers.ANSWER_KINDS) at detection noise scale ``scale``."""
+        """The confidences of tracker ``family``'s answers of kinds unseen, hand, last, put_down, held
+        (in this order; egograph.track.answers.ANSWER_KINDS) at detection noise scale ``scale``."""
         return getattr(self, f"{'noisy_' if scale >= self.noisy_scale else ''}{family}_kinds")
 
     def cross_check(self) -> None:

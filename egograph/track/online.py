@@ -51,7 +51,7 @@ import numpy as np
 from egograph.core.types import PositionInterval, Prediction
 from egograph.core.units import TICKS_PER_SECOND
 from egograph.geometry.observations import Observations
-from egograph.track.answers import HAND, HAND_RAW, LAST, LAST_RAW, PUT_DOWN, STAND, UNSEEN
+from egograph.track.answers import HAND, HAND_RAW, HELD, LAST, LAST_RAW, PUT_DOWN, STAND, UNSEEN, held_rows
 from egograph.track.config import GraphConfig
 from egograph.track.detection_factor import lengths
 from egograph.track.noise_scale import refit
@@ -162,6 +162,8 @@ class _Instance:
     last_xyz: np.ndarray | None = None  # its newest detection (world, metres): the answer while nothing better is known
     last_frame: int = -1                # the PV frame of that detection
     last_ts: int = -1                   # and its timestamp, ticks
+    seen: list = field(default_factory=list)  # (world (n, 3), range (n,)) of every frame's detections so far
+    last_held: tuple = (-1, False)      # (n_rows, whether the newest detection's support was seen close by)
 
     def place_arrays(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """Its places' centres (world, metres), covariances (m^2) and inlier counts, as arrays
@@ -416,6 +418,8 @@ class OnlineTracker:
         for j in sorted({int(v) for v in joins if v >= 0}, reverse=True):
             delta, back = self._merge_into(st, j, delta, back)
         st.last_xyz, st.last_frame, st.last_ts = world[-1], frame, ts
+        if cfg.answers.every_frame and cfg.answers.held_range_m > 0:
+            st.seen.append((world, rng))
         if in_hand.any():
             for w in world[in_hand]:
                 st.hand_rows.append(w)
@@ -685,7 +689,8 @@ class OnlineTracker:
         (that place is then left behind), else that place (UNSEEN; raw, both: that place's share of
         the frame's scores, halved), else the hand's last position; with no place to stand at (none,
         or every one claimed by another instance or not held up) and no hand, the newest detection
-        (LAST, raw ``LAST_RAW``)."""
+        (LAST, raw ``LAST_RAW``; HELD when its support so far was seen from close by,
+        egograph.track.answers.held_rows)."""
         kind = state_kind(state)
         held = [xyz for t, xyz in st.hands if t <= ts]
         if kind == -1 and held:
@@ -701,8 +706,20 @@ class OnlineTracker:
         if held:
             return Prediction(inst, tuple(float(v) for v in held[-1]), HAND_RAW), HAND
         if st.last_xyz is not None:
-            return Prediction(inst, tuple(float(v) for v in st.last_xyz), LAST_RAW), LAST
+            return Prediction(inst, tuple(float(v) for v in st.last_xyz), LAST_RAW), self._last_kind(st)
         return None, LAST
+
+    def _last_kind(self, st: _Instance) -> int:
+        """LAST, or HELD when the detections so far within ``graph.answers.distance_m`` of the newest
+        one were seen from a median range under ``held_range_m``; worked out once per new detection."""
+        if st.last_held[0] != st.n_rows:
+            held = False
+            if st.seen:
+                world = np.concatenate([w for w, _ in st.seen])
+                rng = np.concatenate([r for _, r in st.seen])
+                held = bool(held_rows(world, rng, np.array([len(world) - 1]), self.cfg.answers)[0])
+            st.last_held = (st.n_rows, held)
+        return HELD if st.last_held[1] else LAST
 
     def _raw_answer(self, inst: int, st: _Instance, state: int, next_kind: int | None, ts: int,
                     lead: float | None) -> tuple[Prediction | None, int]:
