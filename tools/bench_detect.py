@@ -132,6 +132,62 @@ def truth_counts(rec, det_dir) -> tuple[int, int, int, int, int] | None:
 
 
 SIDE_BANDS = ((24, 40), (40, 80), (80, 10_000))   # true box short side, PV pixels
+MISS_CAUSES = ("covered", "lost to the cap or NMS", "too large", "too small", "displaced", "nothing near")
+
+
+def miss_cause(truth: np.ndarray, plausible: np.ndarray, kept: np.ndarray) -> tuple[int, int]:
+    """Why one visible instance (true box ``truth`` (4,), PV pixels) is or is not covered at IoU >=
+    0.5: an index into :data:`MISS_CAUSES` and the row of ``plausible`` (N, 4: every plausible
+    proposal of the frame, before NMS and the cap) that overlaps it most (-1 when none reaches IoU 0.1).
+    ``kept``: the proposals left after NMS and the cap. Not covered by any plausible proposal, the
+    best one (largest IoU) says why: "too large" when it holds >= 80 % of the true box (merged with
+    its surround, its support or the hand), "too small" when >= 80 % of it lies inside the true box
+    (a fragment), "displaced" otherwise; "nothing near" when no proposal reaches IoU 0.1."""
+    from egograph.frontend.proposals import iou_matrix
+
+    t = np.asarray(truth, np.float64).reshape(1, 4)
+    iou_all = iou_matrix(t, plausible.reshape(-1, 4))[0]
+    best = int(np.argmax(iou_all)) if len(iou_all) else -1
+    if len(kept) and iou_matrix(t, kept.reshape(-1, 4))[0].max() >= 0.5:
+        return 0, best
+    if best < 0 or iou_all[best] < 0.1:
+        return 5, -1
+    if iou_all[best] >= 0.5:
+        return 1, best
+    b = plausible[best]
+    inter = max(0.0, min(t[0, 2], b[2]) - max(t[0, 0], b[0])) * max(0.0, min(t[0, 3], b[3]) - max(t[0, 1], b[1]))
+    area_t = (t[0, 2] - t[0, 0]) * (t[0, 3] - t[0, 1])
+    area_b = (b[2] - b[0]) * (b[3] - b[1])
+    if inter >= 0.8 * area_t:
+        return 2, best
+    if inter >= 0.8 * area_b:
+        return 3, best
+    return 4, best
+
+
+def cause_row(name: str, source: str, causes: list, reach_m: float) -> list:
+    """One row of the miss table: the share of instances per cause, and of those not covered the
+    shares farther than ``reach_m`` and carried (``causes`` as :func:`proposal_recall` gives them)."""
+    kind = np.array([c[0] for c in causes], int)
+    rng = np.array([c[2] for c in causes], float)
+    carried = np.array([c[3] for c in causes], bool)
+    n, miss = len(kind), kind > 0
+    share = [100 * float(np.mean(kind == j)) if n else float("nan") for j in range(len(MISS_CAUSES))]
+    far = 100 * float(np.mean(rng[miss] > reach_m)) if miss.any() else float("nan")
+    held = 100 * float(np.mean(carried[miss])) if miss.any() else float("nan")
+    return [name, source, n, *share, far, held]
+
+
+def cause_detail(causes: list) -> list:
+    """Rows (cause, source of the best proposal, count, share of all %, median range, carried) of the
+    instances not covered, the largest groups first."""
+    groups: dict = {}
+    for kind, src, rng, carried in causes:
+        if kind > 0:
+            groups.setdefault((MISS_CAUSES[kind], src or "-"), []).append((rng, carried))
+    rows = [[cause, src, len(v), 100 * len(v) / max(len(causes), 1), float(np.median([r for r, _ in v])),
+             int(sum(c for _, c in v))] for (cause, src), v in groups.items()]
+    return sorted(rows, key=lambda r: (-r[2], r[0], r[1]))
 
 
 def proposal_recall(rec, cfg, source_name: str, caps: list[int], step: int) -> dict:
@@ -139,12 +195,17 @@ def proposal_recall(rec, cfg, source_name: str, caps: list[int], step: int) -> d
     ``[covered, proposals, frames, instances, covered per short-side band of SIDE_BANDS...,
     instances per band...]``, and under ``"setup"`` the CPU seconds making the sources (the mesh
     segmentation). Instances: at least half visible, true box short side >= 24 px;
-    covered: some proposal (as ``detect`` makes them: plausible boxes, NMS, the cap) at IoU >= 0.5."""
+    covered: some proposal (as ``detect`` makes them: plausible boxes, NMS, the cap) at IoU >= 0.5.
+    Under ``"causes"``, at the first cap, one row per instance: (index into :data:`MISS_CAUSES`, source
+    of the best plausible proposal or "", true range from the PV camera in metres, carried)."""
     from egograph.frontend.proposals import frame_proposals, iou, nms, proposal_sources, rank_scores
+    from egograph.io.poses import read_pose_json
     from egograph.steps.detect import read_pv
 
     with np.load(rec.synth_gt_dir / "instances.npz") as gt:
-        boxes, visible = gt["boxes"], gt["visible"]
+        boxes, visible, positions, moving = gt["boxes"], gt["visible"], gt["positions"], gt["moving"]
+    eye = read_pose_json(rec.synth_gt_dir / "pv_pose.json")[1][:, 3, :3]   # true PV camera centres, world
+    causes = []
     t0 = time.process_time()
     sources = proposal_sources(rec, cfg.frontend, source_name)
     setup = time.process_time() - t0
@@ -158,8 +219,9 @@ def proposal_recall(rec, cfg, source_name: str, caps: list[int], step: int) -> d
         if rgb is None:
             continue
         _, props = frame_proposals(sources, i, rgb, cfg.frontend)
-        want = [b for b, v in zip(boxes[i], visible[i]) if v >= 0.5 and np.isfinite(b[0])
-                and min(b[2] - b[0], b[3] - b[1]) >= 24]
+        ks = [k for k, (b, v) in enumerate(zip(boxes[i], visible[i])) if v >= 0.5 and np.isfinite(b[0])
+              and min(b[2] - b[0], b[3] - b[1]) >= 24]
+        want = [boxes[i][k] for k in ks]
         n_inst += len(want)
         band = [next(j for j, (lo, hi) in enumerate(SIDE_BANDS) if lo <= min(b[2] - b[0], b[3] - b[1]) < hi)
                 for b in want]
@@ -168,12 +230,19 @@ def proposal_recall(rec, cfg, source_name: str, caps: list[int], step: int) -> d
         for c in caps:
             kept = nms(props, cfg.frontend.nms_iou, c, rank)
             count[c] += len(kept)
+            if c == caps[0]:
+                plausible = np.array([p.box for p in props], np.float64).reshape(-1, 4)
+                kept_boxes = np.array([p.box for p in kept], np.float64).reshape(-1, 4)
+                for k, b in zip(ks, want):
+                    cause, best = miss_cause(b, plausible, kept_boxes)
+                    causes.append((cause, props[best].source if best >= 0 else "",
+                                   float(np.linalg.norm(positions[i, k] - eye[i])), bool(moving[i, k])))
             covered = [any(iou(b, p.box) >= 0.5 for p in kept) for b in want]
             hit[c] += sum(covered)
             np.add.at(band_hit[c], band, np.asarray(covered, int))
     frames = len(range(0, len(rec), step))
     return {c: np.array([hit[c], count[c], frames, n_inst, *band_hit[c], *band_n], float) for c in caps} | \
-        {"setup": setup}
+        {"setup": setup, "causes": causes}
 
 
 def main(argv=None) -> int:
@@ -230,7 +299,7 @@ def main(argv=None) -> int:
     if args.recall:
         from egograph.frontend.proposals import _MESH_OBJECTS
 
-        rows = []
+        rows, cause_rows, detail = [], [], {}
         for name, _, sets in variants:
             overrides = [kv for kv in re.split(r",(?![^\[]*\])", sets) if kv]
             vcfg = load_config(EgographConfig, default_config(), overrides)
@@ -239,13 +308,14 @@ def main(argv=None) -> int:
                 source = args.proposals or vcfg.frontend.proposals_for(enroll)
                 total = {c: 0.0 for c in args.recall_caps}
                 per_rec = {c: [] for c in args.recall_caps}
-                cpu, setup = 0.0, []
+                cpu, setup, causes = 0.0, [], []
                 for root in rec_roots or [rec_root]:
                     r = rec if root == rec_root else open_recording(root, cfg)
                     _MESH_OBJECTS.clear()     # each recording pays its mesh segmentation
                     t = time.process_time()
                     res = proposal_recall(r, vcfg, source, args.recall_caps, args.recall_step)
                     setup.append(res.pop("setup"))
+                    causes += res.pop("causes")
                     cpu += time.process_time() - t - setup[-1]
                     for c, counts in res.items():
                         total[c] = total[c] + counts
@@ -260,6 +330,8 @@ def main(argv=None) -> int:
                     print(f"[{name}] {source} cap {c}: {k[1] / max(k[2], 1):.1f} proposals/frame, recall "
                           f"{100 * k[0] / max(k[3], 1):.1f} % (per recording {spread}) of {int(k[3])} instances",
                           flush=True)
+                cause_rows.append(cause_row(name, source, causes, vcfg.frontend.max_range_m))
+                detail.setdefault("rows", cause_detail(causes))
         benchdoc.table("Proposal recall against proposals per frame",
                        ["variant", "proposals", "cap", "proposals/frame", "recall %", "per recording %",
                         *(f"short side {lo}-{hi} px %" if hi < 10_000 else f"short side >= {lo} px %"
@@ -270,6 +342,24 @@ def main(argv=None) -> int:
                             "true box short side >= 24 px covered by a proposal at IoU >= 0.5; CPU (every thread): the "
                             "proposal sources per frame counted (NMS at each cap included, shared by the caps), and "
                             "once per recording making them (the mesh segmentation).")
+        cap0 = args.recall_caps[0]
+        benchdoc.table(f"Why visible instances are not covered, at a cap of {cap0}",
+                       ["variant", "proposals", "instances", *(f"{c} %" for c in MISS_CAUSES),
+                        "not covered: farther than max_range_m %", "not covered: carried %"],
+                       cause_rows, ["", "", "d", *[".1f"] * len(MISS_CAUSES), ".1f", ".1f"],
+                       note="The instances of the recall table, each by the plausible proposal (before NMS and the "
+                            "cap) overlapping it most: covered at the cap; lost to the cap or NMS (a plausible "
+                            "proposal reaches IoU 0.5); too large (the best holds >= 80 % of the true box: merged "
+                            "with its surround, its support or the hand); too small (>= 80 % of the best lies "
+                            "inside the true box: a fragment); displaced (neither); nothing near (no proposal "
+                            "reaches IoU 0.1). The last two columns: of the instances not covered, the share "
+                            "farther from the PV camera than frontend.max_range_m (the geometry source's reach), "
+                            "and the share being carried.")
+        benchdoc.table(f"Not covered at a cap of {cap0}, by the source of the best proposal ({variants[0][0]})",
+                       ["cause", "best proposal from", "instances", "share of all %", "median range (m)",
+                        "carried"], detail.get("rows", []), ["", "", "d", ".1f", ".2f", "d"],
+                       note="The first variant's instances not covered, by cause and by the source of the "
+                            "plausible proposal that overlaps them most; range: true distance from the PV camera.")
         benchdoc.finish()
         return 0
     speed_rows, truth_rows, stages = [], [], []

@@ -318,7 +318,10 @@ SECTIONS: tuple[Section, ...] = (
             "(`proposal_order=source`: geometry, mesh, image), without the objects standing in the scene mesh "
             "(`geometry+image`), the default with multi-scale image segments "
             "(`image_k_scales=[100,300,1000]`, 8 a scale), and the default with OpenCV's selective search beside "
-            "the segments (`image_selective=single`, stop 63, opt-in).",
+            "the segments (`image_selective=single`, stop 63, opt-in). Then why the rest are not covered at a "
+            "cap of 12 (stop 68): the plausible proposal overlapping an instance most is too large (merged with "
+            "its surround), too small (a fragment), displaced, or none is near; by that proposal's source, the "
+            "instance's range from the camera and whether it is carried.",
             f"{PY} tools/bench_detect.py --rec {DEVICE_RGB}/seed21 {DEVICE_RGB}/seed22 {DEVICE_RGB}/seed23 "
             f"{DEVICE_RGB}/seed24 {DEVICE_RGB}/seed25 {DEVICE_RGB}/seed26 {RECALL_ARGS} --json-tag recall",
             quick=f"{PY} tools/bench_detect.py --rec {DEVICE_RGB}/seed21 {RECALL_ARGS} --json-tag recall",
