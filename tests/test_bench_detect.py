@@ -31,6 +31,10 @@ def boxes(*b) -> np.ndarray:
     (boxes([110, 110, 130, 140]), boxes(), "too small", 0),
     # shifted by half its width: IoU 1200 / 3600 = 0.33, neither holds the other
     (boxes([120, 100, 160, 160]), boxes(), "displaced", 0),
+    # swallowed whole by a segment 25x its size (IoU 0.04): the smallest that holds it
+    (boxes([0, 0, 400, 120], [0, 0, 300, 200]), boxes(), "too large", 1),
+    # slivers only (IoU 0.02 and 0.04): the largest
+    (boxes([101, 101, 105, 113], [101, 101, 105, 125]), boxes(), "too small", 1),
     # a corner touch only (IoU < 0.1) and no proposal at all
     (boxes([135, 155, 200, 220]), boxes(), "nothing near", -1),
     (boxes(), boxes(), "nothing near", -1),

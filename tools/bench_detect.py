@@ -138,31 +138,37 @@ MISS_CAUSES = ("covered", "lost to the cap or NMS", "too large", "too small", "d
 def miss_cause(truth: np.ndarray, plausible: np.ndarray, kept: np.ndarray) -> tuple[int, int]:
     """Why one visible instance (true box ``truth`` (4,), PV pixels) is or is not covered at IoU >=
     0.5: an index into :data:`MISS_CAUSES` and the row of ``plausible`` (N, 4: every plausible
-    proposal of the frame, before NMS and the cap) that overlaps it most (-1 when none reaches IoU 0.1).
+    proposal of the frame, before NMS and the cap) that says so (-1 for "nothing near").
     ``kept``: the proposals left after NMS and the cap. Not covered by any plausible proposal, the
-    best one (largest IoU) says why: "too large" when it holds >= 80 % of the true box (merged with
-    its surround, its support or the hand), "too small" when >= 80 % of it lies inside the true box
-    (a fragment), "displaced" otherwise; "nothing near" when no proposal reaches IoU 0.1."""
+    one overlapping it most (largest IoU, if >= 0.1) says why: "too large" when it holds >= 80 % of
+    the true box (merged with its surround, its support or the hand), "too small" when >= 80 % of it
+    lies inside the true box (a fragment), "displaced" otherwise. Below IoU 0.1 a segment can still
+    swallow the instance whole (the smallest such: "too large") or be a sliver of it (the largest
+    such: "too small"); else "nothing near"."""
     from egograph.frontend.proposals import iou_matrix
 
-    t = np.asarray(truth, np.float64).reshape(1, 4)
-    iou_all = iou_matrix(t, plausible.reshape(-1, 4))[0]
-    best = int(np.argmax(iou_all)) if len(iou_all) else -1
-    if len(kept) and iou_matrix(t, kept.reshape(-1, 4))[0].max() >= 0.5:
-        return 0, best
-    if best < 0 or iou_all[best] < 0.1:
+    t = np.asarray(truth, np.float64).reshape(4)
+    plausible = plausible.reshape(-1, 4)
+    if len(kept) and iou_matrix(t[None], kept.reshape(-1, 4))[0].max() >= 0.5:
+        return 0, int(np.argmax(iou_matrix(t[None], plausible)[0])) if len(plausible) else -1
+    if not len(plausible):
         return 5, -1
+    iou_all = iou_matrix(t[None], plausible)[0]
+    inter = (np.clip(np.minimum(t[2], plausible[:, 2]) - np.maximum(t[0], plausible[:, 0]), 0, None)
+             * np.clip(np.minimum(t[3], plausible[:, 3]) - np.maximum(t[1], plausible[:, 1]), 0, None))
+    area_p = (plausible[:, 2] - plausible[:, 0]) * (plausible[:, 3] - plausible[:, 1])
+    holds = inter >= 0.8 * (t[2] - t[0]) * (t[3] - t[1])    # the proposal holds the true box
+    inside = inter >= 0.8 * np.maximum(area_p, 1e-9)        # the proposal lies inside it
+    best = int(np.argmax(iou_all))
     if iou_all[best] >= 0.5:
         return 1, best
-    b = plausible[best]
-    inter = max(0.0, min(t[0, 2], b[2]) - max(t[0, 0], b[0])) * max(0.0, min(t[0, 3], b[3]) - max(t[0, 1], b[1]))
-    area_t = (t[0, 2] - t[0, 0]) * (t[0, 3] - t[0, 1])
-    area_b = (b[2] - b[0]) * (b[3] - b[1])
-    if inter >= 0.8 * area_t:
-        return 2, best
-    if inter >= 0.8 * area_b:
-        return 3, best
-    return 4, best
+    if iou_all[best] >= 0.1:
+        return (2 if holds[best] else 3 if inside[best] else 4), best
+    if holds.any():
+        return 2, int(np.flatnonzero(holds)[np.argmin(area_p[holds])])
+    if inside.any():
+        return 3, int(np.flatnonzero(inside)[np.argmax(area_p[inside])])
+    return 5, -1
 
 
 def cause_row(name: str, source: str, causes: list, reach_m: float) -> list:
