@@ -132,6 +132,7 @@ def truth_counts(rec, det_dir) -> tuple[int, int, int, int, int] | None:
 
 
 SIDE_BANDS = ((24, 40), (40, 80), (80, 10_000))   # true box short side, PV pixels
+TURN_BANDS = ((0, 30), (30, 100), (100, np.inf))   # the head's turn over the PV exposure, deg/s (motion blur)
 MISS_CAUSES = ("covered", "lost to the cap or NMS", "too large", "too small", "displaced", "nothing near")
 
 
@@ -199,7 +200,8 @@ def cause_detail(causes: list) -> list:
 def proposal_recall(rec, cfg, source_name: str, caps: list[int], step: int) -> dict:
     """Per per-frame cap, counts over every ``step``-th PV frame (they add over recordings):
     ``[covered, proposals, frames, instances, covered per short-side band of SIDE_BANDS...,
-    instances per band...]``, and under ``"setup"`` the CPU seconds making the sources (the mesh
+    instances per band..., covered per band of TURN_BANDS..., instances per band...]`` (the turn bands
+    read ``synth_gt``'s ``device.npz``: none without it), and under ``"setup"`` the CPU seconds making the sources (the mesh
     segmentation). Instances: at least half visible, true box short side >= 24 px;
     covered: some proposal (as ``detect`` makes them: plausible boxes, NMS, the cap) at IoU >= 0.5.
     Under ``"causes"``, at the first cap, one row per instance: (index into :data:`MISS_CAUSES`, source
@@ -211,6 +213,14 @@ def proposal_recall(rec, cfg, source_name: str, caps: list[int], step: int) -> d
     with np.load(rec.synth_gt_dir / "instances.npz") as gt:
         boxes, visible, positions, moving = gt["boxes"], gt["visible"], gt["positions"], gt["moving"]
     eye = read_pose_json(rec.synth_gt_dir / "pv_pose.json")[1][:, 3, :3]   # true PV camera centres, world
+    device = rec.synth_gt_dir / "device.npz"
+    turn = np.full(len(rec), np.nan)
+    if device.is_file():
+        with np.load(device) as dev:
+            if "pv_exposure_turn_dps" in dev.files:
+                turn = dev["pv_exposure_turn_dps"]
+    turn_hit = {c: np.zeros(len(TURN_BANDS), int) for c in caps}
+    turn_n = np.zeros(len(TURN_BANDS), int)
     causes = []
     t0 = time.process_time()
     sources = proposal_sources(rec, cfg.frontend, source_name)
@@ -232,6 +242,8 @@ def proposal_recall(rec, cfg, source_name: str, caps: list[int], step: int) -> d
         band = [next(j for j, (lo, hi) in enumerate(SIDE_BANDS) if lo <= min(b[2] - b[0], b[3] - b[1]) < hi)
                 for b in want]
         np.add.at(band_n, band, 1)
+        tb = [j for j, (lo, hi) in enumerate(TURN_BANDS) if lo <= turn[i] < hi]   # none when NaN
+        turn_n[tb] += len(want)
         rank = rank_scores(props, rgb, cfg.frontend)
         for c in caps:
             kept = nms(props, cfg.frontend.nms_iou, c, rank)
@@ -246,8 +258,10 @@ def proposal_recall(rec, cfg, source_name: str, caps: list[int], step: int) -> d
             covered = [any(iou(b, p.box) >= 0.5 for p in kept) for b in want]
             hit[c] += sum(covered)
             np.add.at(band_hit[c], band, np.asarray(covered, int))
+            turn_hit[c][tb] += sum(covered)
     frames = len(range(0, len(rec), step))
-    return {c: np.array([hit[c], count[c], frames, n_inst, *band_hit[c], *band_n], float) for c in caps} | \
+    return {c: np.array([hit[c], count[c], frames, n_inst, *band_hit[c], *band_n, *turn_hit[c], *turn_n], float)
+            for c in caps} | \
         {"setup": setup, "causes": causes}
 
 
@@ -326,12 +340,15 @@ def main(argv=None) -> int:
                     for c, counts in res.items():
                         total[c] = total[c] + counts
                         per_rec[c].append(100 * counts[0] / max(counts[3], 1))
-                nb = len(SIDE_BANDS)
+                nb, nt = len(SIDE_BANDS), len(TURN_BANDS)
                 for c, k in total.items():
-                    bands = [h / n if n else float("nan") for h, n in zip(k[4:4 + nb], k[4 + nb:])]
+                    bands = [h / n if n else float("nan") for h, n in zip(k[4:4 + nb], k[4 + nb:4 + 2 * nb])]
+                    turns = [h / n if n else float("nan")
+                             for h, n in zip(k[4 + 2 * nb:4 + 2 * nb + nt], k[4 + 2 * nb + nt:])]
                     spread = f"{min(per_rec[c]):.0f}-{max(per_rec[c]):.0f}"
                     rows.append([name, source, c, k[1] / max(k[2], 1), 100 * k[0] / max(k[3], 1), spread,
-                                 *(100 * b for b in bands), int(k[3]), 1000 * cpu / max(k[2], 1),
+                                 *(100 * b for b in bands), *(100 * b for b in turns), int(k[3]),
+                                 1000 * cpu / max(k[2], 1),
                                  float(np.mean(setup))])
                     print(f"[{name}] {source} cap {c}: {k[1] / max(k[2], 1):.1f} proposals/frame, recall "
                           f"{100 * k[0] / max(k[3], 1):.1f} % (per recording {spread}) of {int(k[3])} instances",
@@ -341,11 +358,17 @@ def main(argv=None) -> int:
         benchdoc.table("Proposal recall against proposals per frame",
                        ["variant", "proposals", "cap", "proposals/frame", "recall %", "per recording %",
                         *(f"short side {lo}-{hi} px %" if hi < 10_000 else f"short side >= {lo} px %"
-                          for lo, hi in SIDE_BANDS), "instances", "proposal CPU ms/frame", "set-up CPU s/recording"],
-                       rows, ["", "", "d", ".1f", ".1f", "", ".1f", ".1f", ".1f", "d", ".0f", ".1f"],
+                          for lo, hi in SIDE_BANDS),
+                        *(f"head turn {lo}-{hi} deg/s %" if np.isfinite(hi) else f"head turn >= {lo} deg/s %"
+                          for lo, hi in TURN_BANDS), "instances", "proposal CPU ms/frame", "set-up CPU s/recording"],
+                       rows, ["", "", "d", ".1f", ".1f", "", ".1f", ".1f", ".1f", ".1f", ".1f", ".1f", "d", ".0f",
+                              ".1f"],
                        note=f"Recordings {', '.join(r.name for r in rec_roots or [rec_root])}, every "
                             f"{args.recall_step}th PV frame, pooled; recall: instances at least half visible with a "
-                            "true box short side >= 24 px covered by a proposal at IoU >= 0.5; CPU (every thread): the "
+                            "true box short side >= 24 px covered by a proposal at IoU >= 0.5, also by the true box's "
+                            "short side and by the head's turn over the PV exposure (`synth_gt`'s "
+                            "`pv_exposure_turn_dps`: at 100 deg/s and more a 33 ms exposure smears the frame by tens of "
+                            "pixels, and a small object can vanish into its surround); CPU (every thread): the "
                             "proposal sources per frame counted (NMS at each cap included, shared by the caps), and "
                             "once per recording making them (the mesh segmentation).")
         cap0 = args.recall_caps[0]
