@@ -226,8 +226,8 @@ SECTIONS: tuple[Section, ...] = (
             "over six recordings let errors of opposite sign in one confidence bin (over-confident stands on "
             "1-3, under-confident on 301-303) partly cancel, so the six-recording figure is not the issue's.",
             f"{PY} tools/bench_confidence.py --world legacy --seeds 1 2 3 --frames 900 --jobs 2 --json-tag demo",
-            quick=f"{PY} tools/bench_confidence.py --world legacy --seeds 1 2 3 --frames 900 --jobs 2 --json-tag demo",
-            sizes=(("quick", "the demo's 3 recordings x 900 frames (seeds 1-3)"),
+            quick=f"{PY} tools/bench_confidence.py --world legacy --seeds 1 --frames 900 --json-tag demo",
+            sizes=(("quick", "the demo's first recording x 900 frames (seed 1)"),
                    ("full", "the demo's 3 recordings x 900 frames (seeds 1-3)")),
             modules=BASE + SYNTH + LIFT + TRACK, quick_min=2),
     Section("bench_confidence-heldout12", "Answers with a confidence: the issue's held-out set at full length",
