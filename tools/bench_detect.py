@@ -200,9 +200,9 @@ def cause_detail(causes: list) -> list:
 def proposal_recall(rec, cfg, source_name: str, caps: list[int], step: int) -> dict:
     """Per per-frame cap, counts over every ``step``-th PV frame (they add over recordings):
     ``[covered, proposals, frames, instances, covered per short-side band of SIDE_BANDS...,
-    instances per band..., covered per band of TURN_BANDS..., instances per band...]`` (the turn bands
-    read ``synth_gt``'s ``device.npz``: none without it), and under ``"setup"`` the CPU seconds making the sources (the mesh
-    segmentation). Instances: at least half visible, true box short side >= 24 px;
+    instances per band..., covered per band of TURN_BANDS..., instances per band...]`` (the turn
+    bands read ``synth_gt``'s ``device.npz``: none without it), and under ``"setup"`` the CPU
+    seconds making the sources (the mesh segmentation). Instances: at least half visible, true box short side >= 24 px;
     covered: some proposal (as ``detect`` makes them: plausible boxes, NMS, the cap) at IoU >= 0.5.
     Under ``"causes"``, at the first cap, one row per instance: (index into :data:`MISS_CAUSES`, source
     of the best plausible proposal or "", true range from the PV camera in metres, carried)."""
@@ -367,8 +367,9 @@ def main(argv=None) -> int:
                             f"{args.recall_step}th PV frame, pooled; recall: instances at least half visible with a "
                             "true box short side >= 24 px covered by a proposal at IoU >= 0.5, also by the true box's "
                             "short side and by the head's turn over the PV exposure (`synth_gt`'s "
-                            "`pv_exposure_turn_dps`: at 100 deg/s and more a 33 ms exposure smears the frame by tens of "
-                            "pixels, and a small object can vanish into its surround); CPU (every thread): the "
+                            "`pv_exposure_turn_dps`: at 100 deg/s and more a 33 ms exposure smears the frame by "
+                            "tens of pixels, and a small object can vanish into its surround); CPU (every thread): "
+                            "the "
                             "proposal sources per frame counted (NMS at each cap included, shared by the caps), and "
                             "once per recording making them (the mesh segmentation).")
         cap0 = args.recall_caps[0]
