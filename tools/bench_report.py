@@ -321,7 +321,8 @@ SECTIONS: tuple[Section, ...] = (
     Section("bench_detect-recall", "Proposal recall in the device world",
             "Issue 39's item 0: the share of visible instances (at least half visible, true box short side >= 24 px) "
             "that a proposal covers at IoU >= 0.5, against the proposals per frame, at `detect`'s per-frame cap "
-            "(`frontend.max_proposals`: 12, the default, 24 and 48), by the instance's size in the frame, on the "
+            "(`frontend.max_proposals`: 12, the default, 24 and 48), by the instance's size in the frame and by the "
+            "head's turn over the PV exposure (motion blur; stop 68), on the "
             "held-out device-world RGB recordings (every 10th frame). Variants: the current default "
             "(`geometry+mesh+image` since stop 55, the cap filled by objectness and agreement between the "
             "sources since stop 58), the cap filled source by source as before stop 58 "
