@@ -427,6 +427,7 @@ def test_a_killed_regeneration_resumes_without_running_finished_sections_again(t
     assert log["invocations"][1]["sections"] == {"bench_bb": log["invocations"][1]["sections"]["bench_bb"]}
     page = out.read_text()
     assert "**Last quick-tier regeneration**" in page and "in 2 invocations (killed or stopped, then resumed)" in page
+    assert "; the last invocation ran 1 section in " in page and ", 1 at a time" in page
     assert page.count("- tier: quick (small)") == 2
     # everything current: nothing runs; the full tier runs both again
     assert bench_report.regenerate("quick", None, 1, None, bench_dir, out, sections=sections("quick")) == 0

@@ -1128,7 +1128,7 @@ def tier_line(section: Section, doc: dict, repo: Path = REPO) -> str:
 
 def regeneration_header(regens: dict[str, dict]) -> list[str]:
     """One paragraph per tier's last regeneration: its wall time on this machine, invocations (a killed
-    one resumed), sections run and failed, load."""
+    one resumed), sections run and failed, the last invocation's own sections and wall time, load."""
     out = []
     for tier, log in regens.items():
         invs = log.get("invocations") or []
@@ -1148,6 +1148,11 @@ def regeneration_header(regens: dict[str, dict]) -> list[str]:
                 f"{' / '.join(map(str, slots))} section{'s' if slots != [1] else ''} at a time; {ok} sections run")
         if bad:
             text += f", {len(bad)} failed ({', '.join(bad)})"
+        if len(invs) > 1:   # a resumed log sums days of invocations; the last one alone is a measurement
+            last = invs[-1]
+            n_last = len(last.get("sections") or {})
+            text += (f"; the last invocation ran {n_last} section{'s' if n_last != 1 else ''} in "
+                     f"{_duration(last.get('wall_s') or 0)}, {last.get('slots')} at a time")
         if loads:
             text += f"; load average {min(loads):.1f}-{max(loads):.1f} (2 CPUs shared with other work)"
         text += "." if log.get("complete") else "; not complete: the sections without a current record are below."
