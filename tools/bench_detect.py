@@ -150,11 +150,11 @@ def miss_cause(truth: np.ndarray, plausible: np.ndarray, kept: np.ndarray) -> tu
 
     t = np.asarray(truth, np.float64).reshape(4)
     plausible = plausible.reshape(-1, 4)
+    iou_all = iou_matrix(t[None], plausible)[0]
     if len(kept) and iou_matrix(t[None], kept.reshape(-1, 4))[0].max() >= 0.5:
-        return 0, int(np.argmax(iou_matrix(t[None], plausible)[0])) if len(plausible) else -1
+        return 0, int(np.argmax(iou_all)) if len(plausible) else -1
     if not len(plausible):
         return 5, -1
-    iou_all = iou_matrix(t[None], plausible)[0]
     inter = (np.clip(np.minimum(t[2], plausible[:, 2]) - np.maximum(t[0], plausible[:, 0]), 0, None)
              * np.clip(np.minimum(t[3], plausible[:, 3]) - np.maximum(t[1], plausible[:, 1]), 0, None))
     area_p = (plausible[:, 2] - plausible[:, 0]) * (plausible[:, 3] - plausible[:, 1])
@@ -354,7 +354,8 @@ def main(argv=None) -> int:
                           f"{100 * k[0] / max(k[3], 1):.1f} % (per recording {spread}) of {int(k[3])} instances",
                           flush=True)
                 cause_rows.append(cause_row(name, source, causes, vcfg.frontend.max_range_m))
-                detail.setdefault("rows", cause_detail(causes))
+                if "rows" not in detail:   # the first variant's (and run's) instances only
+                    detail["rows"] = cause_detail(causes)
         benchdoc.table("Proposal recall against proposals per frame",
                        ["variant", "proposals", "cap", "proposals/frame", "recall %", "per recording %",
                         *(f"short side {lo}-{hi} px %" if hi < 10_000 else f"short side >= {lo} px %"

@@ -25,6 +25,7 @@ from __future__ import annotations
 
 import argparse
 import itertools
+import math
 import multiprocessing
 import sys
 from concurrent.futures import ProcessPoolExecutor
@@ -61,10 +62,7 @@ def subset_eces(sums: list[np.ndarray], k: int, max_subsets: int, seed: int) -> 
     n = len(sums)
     if k > n:
         raise SystemExit(f"--subset {k}: only {n} recordings")
-    total = 1
-    for j in range(k):
-        total = total * (n - j) // (j + 1)
-    if total <= max_subsets:
+    if math.comb(n, k) <= max_subsets:
         combos = itertools.combinations(range(n), k)
     else:
         rng = np.random.default_rng(seed)
