@@ -436,6 +436,41 @@ def test_a_killed_regeneration_resumes_without_running_finished_sections_again(t
     assert calls.read_text().split()[-1] == "bench_bb" and bench_report.load(bench_dir)["bench_bb"]["argv"] == ["full"]
 
 
+def test_a_section_that_lost_an_output_lock_runs_again_after_the_holder(tmp_path, monkeypatch):
+    # two sections generating one benchmark recording at once: the second is refused by the output lock
+    bench_dir, out, flag = tmp_path / "bench", tmp_path / "benchmarks.md", tmp_path / "generated"
+    bench_dir.mkdir()
+    writer = tmp_path / "writer.py"
+    writer.write_text(WRITER.format(tools=str(REPO / "tools")))
+    monkeypatch.setattr(bench_report, "LOG_DIR", tmp_path / "logs")
+    calls = tmp_path / "calls.txt"
+    refused = f"echo 'error: {bench_report.LOCK_MESSAGE} (pid 1); wait for it or choose another --out' && exit 2"
+
+    def write(stem):
+        return f"{sys.executable} {writer} {bench_dir / (stem + '.json')} quick"
+    mods = ("tests/test_bench_report.py",)
+    holder = f"echo bench_aa >> {calls} && sleep 2 && touch {flag} && " + write("bench_aa")
+    waiter = f"echo bench_bb >> {calls} && if test -e {flag}; then {write('bench_bb')}; else {refused}; fi"
+    always = f"echo bench_cc >> {calls} && {refused}"
+    other = f"echo bench_dd >> {calls} && exit 3"
+    sections = tuple(bench_report.Section(stem, stem, ".", cmd, modules=mods, quick_min=1)
+                     for stem, cmd in (("bench_aa", holder), ("bench_bb", waiter), ("bench_cc", always),
+                                       ("bench_dd", other)))
+    assert bench_report.regenerate("quick", None, 2, None, bench_dir, out, sections=sections) == 1
+    ran = calls.read_text().split()
+    # refused once: run again, and it waited for the holder; refused twice: failed; any other error: not again
+    assert sorted(ran) == ["bench_aa", "bench_bb", "bench_bb", "bench_cc", "bench_cc", "bench_dd"]
+    assert len(ran) - 1 - ran[::-1].index("bench_bb") > ran.index("bench_aa")   # (its record: after the holder's)
+    assert sorted(bench_report.load(bench_dir)) == ["bench_aa", "bench_bb"]
+    log = json.loads((bench_dir / "regeneration" / "quick.json").read_text())
+    runs = log["invocations"][-1]["sections"]
+    assert runs["bench_bb"]["status"] == "ok" and runs["bench_bb"]["attempt"] == 2
+    assert runs["bench_cc"]["status"] == "failed" and runs["bench_cc"]["attempt"] == 2
+    assert runs["bench_dd"]["status"] == "failed" and "attempt" not in runs["bench_dd"]
+    assert not bench_report.lost_output_lock(tmp_path / "logs" / "bench_dd.log")
+    assert not bench_report.lost_output_lock(tmp_path / "no such log")
+
+
 def test_a_section_alone_runs_first_the_section_whose_missing_outputs_it_reads(tmp_path, monkeypatch):
     # a fresh checkout: the records came with the repository, the poses a section reads did not
     bench_dir, out, made = tmp_path / "bench", tmp_path / "benchmarks.md", tmp_path / "refined"

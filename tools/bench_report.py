@@ -871,7 +871,9 @@ def regenerate(tier: str, only: list[str] | None, workers: int, scheduler: str |
     ``workers`` at once on this machine. ``longest``: the longest sections first (:func:`longest_first`).
     ``only``: these sections and those they read (:func:`select`; the latter run only when not current or
     their outputs are missing); ``force``: the sections of ``only`` (every section without) run even
-    when current. Exit 0 when every chosen section has a current record."""
+    when current. A section refused by an output lock another section held (two sections generating one
+    benchmark recording at once) runs once more, after every section running then has finished. Exit 0
+    when every chosen section has a current record."""
     from egograph.io.atomic import atomic_write_text
 
     chosen = select(only, sections)
@@ -923,7 +925,7 @@ def regenerate(tier: str, only: list[str] | None, workers: int, scheduler: str |
         log["invocations"] = merged_invocations(on_disk, log["invocations"], inv)
         atomic_write_text(regen_file, benchdoc.dumps(log) + "\n")
 
-    def one(s: Section) -> tuple[Section, int]:
+    def one(s: Section, attempt: int = 1) -> tuple[Section, int]:
         command = s.command_for(tier)
         path = bench_dir / f"{s.stem}.json"
         before = path.stat().st_mtime_ns if path.is_file() else None
@@ -947,6 +949,8 @@ def regenerate(tier: str, only: list[str] | None, workers: int, scheduler: str |
                     atomic_write_text(bench_dir / README_DIR_NAME / path.name, path.read_text())
             inv["sections"][s.stem] = {"status": "ok" if rc == 0 else "failed", "exit": rc,
                                        "wall_s": round(wall, 1), "cpu_s": round(cpu, 1)}
+            if attempt > 1:
+                inv["sections"][s.stem]["attempt"] = attempt
             save()
             render_files(bench_dir, out, sections)
         print(f"[{s.stem}] {'done' if rc == 0 else f'FAILED (exit {rc}; see {logfile})'} in {wall / 60:.1f} min",
@@ -955,6 +959,9 @@ def regenerate(tier: str, only: list[str] | None, workers: int, scheduler: str |
 
     save()
     pending, failed, running = list(todo), set(), {}
+    # a section that lost a race for an output lock (two sections generating one benchmark recording):
+    # run once more, after every section running when it failed has finished (the holder among them)
+    retry_after: dict[str, set[str]] = {}
     try:
         with ThreadPoolExecutor(slots) as pool:
             while pending or running:
@@ -962,6 +969,8 @@ def regenerate(tier: str, only: list[str] | None, workers: int, scheduler: str |
                 for s in list(pending):
                     if len(running) >= slots:
                         break
+                    if retry_after.get(s.stem, set()) & {r.stem for r in running.values()}:
+                        continue
                     if any(d in failed for d in s.after):
                         pending.remove(s)
                         failed.add(s.stem)
@@ -970,7 +979,7 @@ def regenerate(tier: str, only: list[str] | None, workers: int, scheduler: str |
                         print(f"[{s.stem}] skipped: it reads {', '.join(s.after)}, which failed", flush=True)
                     elif not any(d in busy for d in s.after):
                         pending.remove(s)
-                        running[pool.submit(one, s)] = s
+                        running[pool.submit(one, s, 2 if s.stem in retry_after else 1)] = s
                 if not running:
                     continue
                 finished, _ = wait(list(running), timeout=60, return_when=FIRST_COMPLETED)
@@ -979,7 +988,12 @@ def regenerate(tier: str, only: list[str] | None, workers: int, scheduler: str |
                 for f in finished:
                     s, rc = f.result()
                     del running[f]
-                    if rc != 0:
+                    if rc != 0 and s.stem not in retry_after and lost_output_lock(LOG_DIR / f"{s.stem}.log"):
+                        retry_after[s.stem] = {r.stem for r in running.values()}
+                        pending.insert(0, s)
+                        print(f"[{s.stem}] another section held an output it writes: it runs again after "
+                              f"{', '.join(sorted(retry_after[s.stem])) or 'nothing else'}", flush=True)
+                    elif rc != 0:
                         failed.add(s.stem)
     finally:
         if client is not None:
@@ -991,6 +1005,19 @@ def regenerate(tier: str, only: list[str] | None, workers: int, scheduler: str |
     print(f"regeneration ({tier} tier): {len(todo) - len(failed)} of {len(todo)} sections run, "
           f"{len(chosen) - len(todo)} kept, {len(failed)} failed; {inv['wall_s'] / 60:.1f} min", flush=True)
     return 1 if failed else 0
+
+
+LOCK_MESSAGE = "another egograph run is writing this output"   # egograph.io.atomic's refusal
+
+
+def lost_output_lock(log: Path) -> bool:
+    """Whether a section's log ends in egograph's refusal to write an output another process holds
+    (egograph.io.atomic), as when two sections generate one benchmark recording at once."""
+    try:
+        tail = log.read_bytes()[-4096:].decode("utf-8", "replace")
+    except OSError:
+        return False
+    return LOCK_MESSAGE in tail
 
 
 # --------------------------------------------------------------------------- rendering
