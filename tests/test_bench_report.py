@@ -380,6 +380,18 @@ def test_a_docstring_comment_or_layout_edit_changes_no_digest(tmp_path):
     tool.write_text("import egograph.track.graph\nFRAMES = 3000\n")
     assert bench_report.modules_digest(paths, repo) != d0
     assert bench_report.code_view(b"def broken(:\n") == b"def broken(:\n"
+    # scheme 5: a string standing alone under a constant (an attribute docstring) is dropped too; scheme 4
+    # counted it; the constant itself still counts
+    tool.write_text("import egograph.track.graph\n")
+    base = '"""Graph."""\n\nKINDS = ("stand", "hand")\n"""The kinds: {}."""\n\n\ndef solve(x):\n    return x + 1\n'
+    mod.write_text(base.format("two"))
+    d5, d4 = bench_report.modules_digest(paths, repo), bench_report.modules_digest(paths, repo, scheme=4)
+    mod.write_text(base.format("two, counted on 34 recordings"))
+    assert bench_report.modules_digest(paths, repo) == d5 and bench_report.modules_digest(paths, repo, scheme=4) != d4
+    mod.write_text(base.format("two").replace('"hand")', '"hand", "held")'))
+    assert bench_report.modules_digest(paths, repo) != d5
+    # a body of strings alone keeps a statement
+    assert b"Pass" in bench_report.code_view(b"class A:\n    'x'\n    'y'\n")
 
 
 WRITER = """import sys

@@ -515,7 +515,7 @@ DIGEST_SUFFIXES = (".py", ".yaml", ".yml", ".json", ".txt")
 
 
 CONFIG_DIR = "egograph/configs"
-DIGEST_SCHEME = 4
+DIGEST_SCHEME = 5
 """1: every file's bytes. 2: the same for code; a packaged YAML config counts by what the section's
 code can read of it (:func:`config_view`): its parsed content, without comments or layout, and without
 its ``frontend`` block when the section does not exercise ``egograph/frontend``. Under 1 a change of a
@@ -526,20 +526,40 @@ every section exercising ``egograph/steps`` changed, 29 of them, the tracker ben
 detections, which never import it, among them. 4: as 3, and a Python file counts by its syntax tree
 without docstrings (:func:`code_view`, the normalised form egograph.core.provenance keys caches
 by): a docstring, comment or layout edit runs nothing, a changed statement or knob text does. Under
-3 correcting a docstring of ``egograph/steps/detect.py`` marked 9 sections changed."""
+3 correcting a docstring of ``egograph/steps/detect.py`` marked 9 sections changed. 5: as 4, and every
+string standing alone as a statement is dropped too, not only a module's, class's or function's first:
+the attribute docstrings under a constant or a dataclass field (``ANSWER_KINDS``), which Python
+discards as it does comments. Under 4 correcting the count in ``ANSWER_KINDS``'s docstring marked the
+24 tracking sections changed."""
 
 
 @functools.lru_cache(maxsize=None)
-def code_view(data: bytes) -> bytes:
-    """A Python file as the digest counts it (scheme 4): its syntax tree, docstrings removed
-    (``ast.dump``: no comments, no layout); the bytes when it does not parse. Cached by content: a
+def code_view(data: bytes, scheme: int = DIGEST_SCHEME) -> bytes:
+    """A Python file as the digest counts it (scheme 4 and later): its syntax tree, docstrings removed
+    (``ast.dump``: no comments, no layout); from scheme 5 also every string standing alone as a
+    statement (:func:`_strip_bare_strings`); the bytes when it does not parse. Cached by content: a
     page render digests every section, twice, over the same files."""
     from egograph.core.provenance import _strip_docstrings
 
     try:
-        return ast.dump(_strip_docstrings(ast.parse(data))).encode()
+        tree = _strip_docstrings(ast.parse(data))
     except (SyntaxError, ValueError):
         return data
+    return ast.dump(_strip_bare_strings(tree) if scheme >= 5 else tree).encode()
+
+
+def _strip_bare_strings(tree: ast.AST) -> ast.AST:
+    """``tree`` without any statement that is a string constant alone (an attribute docstring: Python
+    evaluates it to nothing); a body left empty gets ``pass``."""
+    for node in ast.walk(tree):
+        for field in ("body", "orelse", "finalbody"):
+            body = getattr(node, field, None)
+            if isinstance(body, list) and body and isinstance(body[0], ast.stmt):
+                kept = [b for b in body if not (isinstance(b, ast.Expr) and isinstance(b.value, ast.Constant)
+                                                and isinstance(b.value.value, str))]
+                if len(kept) != len(body):
+                    setattr(node, field, kept or ([ast.Pass()] if field == "body" else []))
+    return tree
 
 # a module named in a string: a subprocess the tool starts (``-m egograph.cli.main``, ``-c "from
 # egograph.cli.main import main; ..."``) runs code the tool's own imports do not reach
@@ -700,7 +720,7 @@ def modules_digest(paths: tuple[str, ...] | list[str], repo: Path = REPO, *, sch
             if scheme >= 2 and name.startswith(CONFIG_DIR + "/") and Path(name).suffix in (".yaml", ".yml"):
                 data = config_view(data, paths)
             elif scheme >= 4 and name.endswith(".py"):
-                data = code_view(data)
+                data = code_view(data, scheme)
             h.update(name.encode() + b"\0" + data + b"\0")
     return h.hexdigest()[:16]
 
