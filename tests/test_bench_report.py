@@ -208,10 +208,16 @@ def test_the_readme_score_tables_are_rendered_from_the_records():
     tampered = bench_report.with_readme_scores(readme.replace(block, "| stale |"), docs)
     assert tampered == readme
     # the README's records are the full-size ones: its own copies, with their provenance in the block
+    # and whether the code they exercise changed since (a quick-tier regeneration does not refresh them)
+    sections = {s.stem: s for s in bench_report.SECTIONS}
     for stem in bench_report.README_RECORDS:
         assert (REPO / "docs" / "bench" / "readme" / f"{stem}.json").is_file(), stem
         commit = docs[stem]["egograph"]["commit"][:10]
-        assert f"at `{commit}`" in block
+        changed = bench_report.modules_changed(sections[stem], docs[stem])
+        assert f"at `{commit}`, {'**code changed since**' if changed else 'code unchanged since'}" in block
+    stale = json.loads(json.dumps(docs[stem]))
+    stale["regeneration"]["modules_digest"] = "0" * 16
+    assert f"at `{commit}`, **code changed since**" in bench_report.readme_scores({**docs, stem: stale})
 
 
 def _fake_repo(tmp_path: Path) -> Path:

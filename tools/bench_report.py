@@ -1355,9 +1355,12 @@ def pixels_rows(doc: dict) -> list[str]:
     return lines
 
 
-def readme_scores(docs: dict[str, dict]) -> str | None:
+def readme_scores(docs: dict[str, dict], repo: Path = REPO) -> str | None:
     """The README's score tables (issue 29): the trackers on the 12 held-out recordings and
-    graph-causal against lag, from their records; None without those records."""
+    graph-causal against lag, from their records; None without those records. The last line gives
+    each record's tier and commit, and whether the code its section exercises changed since (the
+    page's staleness, :func:`modules_changed`): a quick-tier regeneration refreshes the page, not
+    these copies."""
     fe = docs.get("bench_frontend_trackers-device")
     tr, ca = docs.get("bench_trackers-heldout-robust"), docs.get("bench_causal-heldout6")
     if tr is None or ca is None or fe is None:
@@ -1382,10 +1385,13 @@ def readme_scores(docs: dict[str, dict]) -> str | None:
         lines.append(f"| {det_set.upper()} P / R @0.25, L2 (m) | "
                      + " | ".join(f"{by[n][2]:.1f} / {by[n][3]:.1f}, {by[n][4]:.2f}" for n in names) + " |")
     made = []
-    for doc in (fe, tr, ca):
+    by_stem = {s.stem: s for s in SECTIONS}
+    for stem, doc in zip(README_RECORDS, (docs[stem] for stem in README_RECORDS)):
         reg, commit = regeneration_of(doc), (doc.get("egograph") or {}).get("commit") or "no commit"
-        made.append(f"`{doc['tool']}` {reg.get('tier', 'by hand')} tier at `{commit[:10]}`" if reg
-                    else f"`{doc['tool']}` by hand at `{commit[:10]}`")
+        changed = modules_changed(by_stem[stem], doc, repo) if stem in by_stem else None
+        since = "" if changed is None else ", **code changed since**" if changed else ", code unchanged since"
+        made.append((f"`{doc['tool']}` {reg.get('tier', 'by hand')} tier at `{commit[:10]}`" if reg
+                     else f"`{doc['tool']}` by hand at `{commit[:10]}`") + since)
     lines += ["", "Records: " + "; ".join(made) + " (docs/bench/readme/)."]
     return "\n".join(lines)
 
