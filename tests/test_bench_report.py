@@ -489,6 +489,23 @@ def test_a_section_that_lost_an_output_lock_runs_again_after_the_holder(tmp_path
     assert not bench_report.lost_output_lock(tmp_path / "no such log")
 
 
+def test_the_header_gives_the_last_invocation_that_ran_the_whole_tier():
+    def inv(started, statuses, wall, commit):
+        return {"started": started, "commit": commit, "slots": 2, "wall_s": wall,
+                "load_average": {"start": [0.5], "end": [1.5]},
+                "sections": {f"bench_{k}": {"status": st} for k, st in enumerate(statuses)}}
+    log = {"complete": False, "invocations": [inv("2026-01-01T00:00:00", ["ok", "ok", "ok"], 1800.0, "a" * 40),
+                                              inv("2026-01-02T00:00:00", ["ok", "failed", "ok"], 900.0, "b" * 40),
+                                              inv("2026-01-03T00:00:00", ["ok"], 12.0, "c" * 40)]}
+    text = " ".join(bench_report.regeneration_header({"quick": log}, 3))
+    # the last whole run that failed nothing, not the log's sum over days nor a run of one section
+    assert "Every section of the tier in one invocation, last: 30 min 0 s, 2 at a time" in text
+    assert "started 2026-01-01T00:00:00 at `aaaaaaaaaa`, load average 0.5 at the start." in text
+    assert "not complete" in text   # the log's own flag, when nothing says the records are current
+    assert "not complete" not in " ".join(bench_report.regeneration_header({"quick": log}, 3, {"quick": True}))
+    assert "in one invocation" not in " ".join(bench_report.regeneration_header({"quick": log}, 4))
+
+
 def test_a_section_alone_runs_first_the_section_whose_missing_outputs_it_reads(tmp_path, monkeypatch):
     # a fresh checkout: the records came with the repository, the poses a section reads did not
     bench_dir, out, made = tmp_path / "bench", tmp_path / "benchmarks.md", tmp_path / "refined"

@@ -1173,9 +1173,13 @@ def tier_line(section: Section, doc: dict, repo: Path = REPO) -> str:
     return f"- tier: {reg.get('tier')} ({sizes}), at {at}; code exercised ({mods}): {state}"
 
 
-def regeneration_header(regens: dict[str, dict]) -> list[str]:
+def regeneration_header(regens: dict[str, dict], n_sections: int = len(SECTIONS),
+                        current: dict[str, bool] | None = None) -> list[str]:
     """One paragraph per tier's last regeneration: its wall time on this machine, invocations (a killed
-    one resumed), sections run and failed, the last invocation's own sections and wall time, load."""
+    one resumed), sections run and failed, the last invocation's own sections and wall time, load; and
+    the last invocation that ran all ``n_sections`` sections at once (the tier's own wall time, which a
+    log resumed over days does not measure). ``current``: per tier, whether every section has a record
+    current for it (else the log's own ``complete`` says, which a later ``--only`` run leaves false)."""
     out = []
     for tier, log in regens.items():
         invs = log.get("invocations") or []
@@ -1202,7 +1206,16 @@ def regeneration_header(regens: dict[str, dict]) -> list[str]:
                      f"{_duration(last.get('wall_s') or 0)}, {last.get('slots')} at a time")
         if loads:
             text += f"; load average {min(loads):.1f}-{max(loads):.1f} (2 CPUs shared with other work)"
-        text += "." if log.get("complete") else "; not complete: the sections without a current record are below."
+        done = log.get("complete") if current is None or tier not in current else current[tier]
+        text += "." if done else "; not complete: the sections without a current record are below."
+        whole = [i for i in invs if len(i.get("sections") or {}) >= n_sections
+                 and all(v.get("status") == "ok" for v in i["sections"].values())]
+        if whole:
+            w = whole[-1]
+            load = (w.get("load_average") or {}).get("start", [None])[0]
+            text += (f" Every section of the tier in one invocation, last: {_duration(w.get('wall_s') or 0)}, "
+                     f"{w.get('slots')} at a time, started {w.get('started')} at `{str(w.get('commit'))[:10]}`"
+                     + (f", load average {load:.1f} at the start" if load is not None else "") + ".")
         out += [text, ""]
     return out
 
@@ -1229,14 +1242,15 @@ def render(docs: dict[str, dict], sections: tuple[Section, ...] = SECTIONS, rege
            "sizes are stated in each section), the full tier at the sizes below, each section a task on the Dask "
            "cluster at ADDR when one is given. A section whose record is current for the tier and the code (the "
            "digest of the modules it exercises, kept in the record: of egograph's code only the modules its tool can "
-           "import, found by reading their import statements, each by its syntax tree without docstrings, so "
-           "a docstring, comment or layout edit changes nothing; a packaged YAML config by the settings the "
+           "import, found by reading their import statements, each by its syntax tree without docstrings or other "
+           "strings standing alone, so a docstring, comment or layout edit changes nothing; a packaged YAML config by the settings the "
            "section can read: its front-end block only where the front-end is exercised) is not run again, so a killed regeneration "
            "resumes where it stopped. A section that reads another's outputs (the refined poses of "
            "`bench_refine-f3000-mesh`) runs after it; `--only` that section runs the other first when its record is "
            "not current or its outputs are missing (a fresh checkout has the records, not `.cache/`). Each section "
            "states its tier, the commit its record was made at and whether that code changed since.", ""]
-    out += regeneration_header(regens or {})
+    current = {tier: all(is_current(s, docs.get(s.stem), tier, repo) for s in sections) for tier in (regens or {})}
+    out += regeneration_header(regens or {}, len(sections), current)
     out += ["The full tier's commands, from the repository root (`tools/bench_report.py --commands` prints them "
             "as a script, `--missing` only the sections not recorded yet; `--commands --tier quick` the quick "
             "tier's):", "", "```bash"]
