@@ -413,13 +413,20 @@ benchdoc.finish()
 """
 
 
-def test_a_killed_regeneration_resumes_without_running_finished_sections_again(tmp_path, monkeypatch):
-    bench_dir, out = tmp_path / "bench", tmp_path / "benchmarks.md"
+@pytest.fixture
+def regen(tmp_path, monkeypatch):
+    """A scratch regeneration: (records folder, page, the WRITER script, the file each section's command
+    appends its stem to); section logs under tmp_path/logs."""
+    bench_dir = tmp_path / "bench"
     bench_dir.mkdir()
     writer = tmp_path / "writer.py"
     writer.write_text(WRITER.format(tools=str(REPO / "tools")))
     monkeypatch.setattr(bench_report, "LOG_DIR", tmp_path / "logs")
-    calls = tmp_path / "calls.txt"
+    return bench_dir, tmp_path / "benchmarks.md", writer, tmp_path / "calls.txt"
+
+
+def test_a_killed_regeneration_resumes_without_running_finished_sections_again(regen):
+    bench_dir, out, writer, calls = regen
 
     def sections(second: str) -> tuple:
         def cmd(stem, mark):   # appends its stem to calls.txt, then writes the record (or fails)
@@ -454,14 +461,10 @@ def test_a_killed_regeneration_resumes_without_running_finished_sections_again(t
     assert calls.read_text().split()[-1] == "bench_bb" and bench_report.load(bench_dir)["bench_bb"]["argv"] == ["full"]
 
 
-def test_a_section_that_lost_an_output_lock_runs_again_after_the_holder(tmp_path, monkeypatch):
+def test_a_section_that_lost_an_output_lock_runs_again_after_the_holder(tmp_path, regen):
     # two sections generating one benchmark recording at once: the second is refused by the output lock
-    bench_dir, out, flag = tmp_path / "bench", tmp_path / "benchmarks.md", tmp_path / "generated"
-    bench_dir.mkdir()
-    writer = tmp_path / "writer.py"
-    writer.write_text(WRITER.format(tools=str(REPO / "tools")))
-    monkeypatch.setattr(bench_report, "LOG_DIR", tmp_path / "logs")
-    calls = tmp_path / "calls.txt"
+    bench_dir, out, writer, calls = regen
+    flag = tmp_path / "generated"
     refused = f"echo 'error: {bench_report.LOCK_MESSAGE} (pid 1); wait for it or choose another --out' && exit 2"
 
     def write(stem):
@@ -485,7 +488,7 @@ def test_a_section_that_lost_an_output_lock_runs_again_after_the_holder(tmp_path
     assert runs["bench_bb"]["status"] == "ok" and runs["bench_bb"]["attempt"] == 2
     assert runs["bench_cc"]["status"] == "failed" and runs["bench_cc"]["attempt"] == 2
     assert runs["bench_dd"]["status"] == "failed" and "attempt" not in runs["bench_dd"]
-    assert not bench_report.lost_output_lock(tmp_path / "logs" / "bench_dd.log")
+    assert not bench_report.lost_output_lock(bench_report.section_log("bench_dd"))
     assert not bench_report.lost_output_lock(tmp_path / "no such log")
 
 
@@ -506,14 +509,10 @@ def test_the_header_gives_the_last_invocation_that_ran_the_whole_tier():
     assert "in one invocation" not in " ".join(bench_report.regeneration_header({"quick": log}, 4))
 
 
-def test_a_section_alone_runs_first_the_section_whose_missing_outputs_it_reads(tmp_path, monkeypatch):
+def test_a_section_alone_runs_first_the_section_whose_missing_outputs_it_reads(tmp_path, regen):
     # a fresh checkout: the records came with the repository, the poses a section reads did not
-    bench_dir, out, made = tmp_path / "bench", tmp_path / "benchmarks.md", tmp_path / "refined"
-    bench_dir.mkdir()
-    writer = tmp_path / "writer.py"
-    writer.write_text(WRITER.format(tools=str(REPO / "tools")))
-    monkeypatch.setattr(bench_report, "LOG_DIR", tmp_path / "logs")
-    calls = tmp_path / "calls.txt"
+    bench_dir, out, writer, calls = regen
+    made = tmp_path / "refined"
 
     def cmd(stem, make=""):
         return (f"echo {stem} >> {calls} && {make}{sys.executable} {writer} {bench_dir / (stem + '.json')} quick")

@@ -44,6 +44,11 @@ REGEN_FORMAT = "egograph-regeneration/1"
 LOG_DIR = REPO / ".cache" / "regenerate"  # each section's output while it regenerates
 
 
+def section_log(stem: str) -> Path:
+    """Where a section's command writes its output while it regenerates."""
+    return LOG_DIR / f"{stem}.log"
+
+
 @dataclass(frozen=True)
 class Section:
     """One benchmark run: its JSON file's stem (``<tool>[-<tag>]``), a heading, what it measures
@@ -949,7 +954,7 @@ def regenerate(tier: str, only: list[str] | None, workers: int, scheduler: str |
         command = s.command_for(tier)
         path = bench_dir / f"{s.stem}.json"
         before = path.stat().st_mtime_ns if path.is_file() else None
-        logfile = str(LOG_DIR / f"{s.stem}.log")
+        logfile = str(section_log(s.stem))
         print(f"[{s.stem}] {command}  (log {logfile})", flush=True)
         if client is not None:
             rc, wall, cpu = client.submit(run_command, command, str(REPO), env, logfile, pure=False).result()
@@ -1008,7 +1013,7 @@ def regenerate(tier: str, only: list[str] | None, workers: int, scheduler: str |
                 for f in finished:
                     s, rc = f.result()
                     del running[f]
-                    if rc != 0 and s.stem not in retry_after and lost_output_lock(LOG_DIR / f"{s.stem}.log"):
+                    if rc != 0 and s.stem not in retry_after and lost_output_lock(section_log(s.stem)):
                         retry_after[s.stem] = {r.stem for r in running.values()}
                         pending.insert(0, s)
                         print(f"[{s.stem}] another section held an output it writes: it runs again after "
