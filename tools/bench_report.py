@@ -164,12 +164,12 @@ SECTIONS: tuple[Section, ...] = (
             "the device world; the last table sets the calibration bands (memory + reference lifting) and the "
             "graph's targets of both worlds side by side: a tracker's figures on simulated detections should not "
             "depend on how the pixels look.",
-            f"{PY} tools/bench_trackers.py --world device legacy --seeds 301 302 303 304 305 306 --frames 1000 --trackers "
+            f"{PY} tools/bench_trackers.py --world device legacy --seeds {HELD_OUT_12} --frames 3000 --trackers "
             "memory kf graph --no-oracle --jobs 2 --json-tag device --out .cache/bench_trackers_device",
             quick=f"{PY} tools/bench_trackers.py --world device legacy --seeds {QUICK_HELD_OUT} --frames 1000 "
             "--trackers memory kf graph --no-oracle --jobs 2 --json-tag device --out .cache/bench_trackers_device",
             sizes=(("quick", "2 held-out recordings x 1000 frames (seeds 301, 302) in each world"),
-                   ("full", "6 held-out recordings x 1000 frames (seeds 301-306) in each world")),
+                   ("full", "12 held-out recordings x 3000 frames (seeds 301-312) in each world")),
             modules=SET_TRACKING, quick_min=20),
     Section("bench_causal", "Causal and lagged tracking, online latency",
             "graph-causal (lag 0 and lagged) against memory, kf and the offline graph on the same robust "
