@@ -168,8 +168,7 @@ SECTIONS: tuple[Section, ...] = (
             "memory kf graph --no-oracle --jobs 2 --json-tag device --out .cache/bench_trackers_device",
             quick=f"{PY} tools/bench_trackers.py --world device legacy --seeds {QUICK_HELD_OUT} --frames 1000 "
             "--trackers memory kf graph --no-oracle --jobs 2 --json-tag device --out .cache/bench_trackers_device",
-            sizes=(("quick", "2 held-out recordings x 1000 frames (seeds 301, 302) in each world"),
-                   ("full", "12 held-out recordings x 3000 frames (seeds 301-312) in each world")),
+            sizes=tuple((tier, f"{size} in each world") for tier, size in HELD_OUT_12_SIZES),
             modules=SET_TRACKING, quick_min=20),
     Section("bench_causal", "Causal and lagged tracking, online latency",
             "graph-causal (lag 0 and lagged) against memory, kf and the offline graph on the same robust "
