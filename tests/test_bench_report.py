@@ -614,3 +614,11 @@ def test_concurrent_regenerations_keep_each_others_sections():
     a_now = {**a, "sections": {"x": {"status": "ok"}, "z": {"status": "failed"}}}
     got = bench_report.merged_invocations(on_disk, [older, a_now], a_now)
     assert got[1]["sections"] == a_now["sections"]
+    # A read B's invocation at an earlier save, before B finished; B has saved its sections since:
+    # A's next save keeps B's, not its own stale copy (stop 71: a 47-minute section logged as empty)
+    got = bench_report.merged_invocations(on_disk, [older, a, b_old], a)
+    assert got[2]["sections"] == {"y": {"status": "ok"}}
+    # an invocation the disk no longer has (the file replaced meanwhile) is kept from memory
+    disk3 = {"format": bench_report.REGEN_FORMAT, "tier": "full", "invocations": [a]}
+    assert [i["started"] for i in bench_report.merged_invocations(disk3, [older, a, b_new], a)] == \
+        [older["started"], a["started"], b_old["started"]]

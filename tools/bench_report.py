@@ -805,15 +805,18 @@ def stamp(path: Path, section: Section, tier: str, command: str) -> dict:
 
 
 def merged_invocations(on_disk: dict | None, known: list[dict], inv: dict) -> list[dict]:
-    """The invocations to save: those this process knows, with ``inv`` as it is now, plus any that
-    another regeneration of the same tier, running at the same time, saved meanwhile (an invocation
-    is known by its ``id``; one saved before ids, by its start and arguments), in the order they started. Without the merge the one that
-    saves last would drop the other's sections."""
+    """The invocations to save: those this process knows, with ``inv`` as it is now, and every other
+    invocation as the disk has it: another regeneration of the same tier, running at the same time,
+    saves its own invocation, so its copy on disk is newer than any this process read earlier (an
+    invocation is known by its ``id``; one saved before ids, by its start and arguments), in the
+    order they started. Without the merge the one that saves last would drop the other's sections;
+    with this process's older copy preferred (before stop 71) a long regeneration saving after a short
+    one had finished wrote back the short one's sections as they were at its start: empty."""
     key = lambda i: i.get("id") or (i.get("started"), tuple(i.get("argv") or ()))  # noqa: E731
     out = {key(i): i for i in known}
     if on_disk and on_disk.get("format") == REGEN_FORMAT and on_disk.get("tier") is not None:
         for i in on_disk.get("invocations") or []:
-            out.setdefault(key(i), i)
+            out[key(i)] = i
     out[key(inv)] = inv
     return sorted(out.values(), key=lambda i: i.get("started") or "")
 
