@@ -124,6 +124,9 @@ FRONTEND_SIZES = (("quick", "1 RGB recording x 300 frames (seed 21)"),
                   ("full", "4 RGB recordings x 1000 frames (seeds 21, 22, 25, 26)"))
 DEVICE_FRONTEND_SIZES = (("quick", "1 device-world RGB recording x 300 frames (seed 21)"),
                          ("full", "6 device-world RGB recordings x 300 frames (seeds 21-26)"))
+# bench_frontend_trackers on those recordings, per tier (both device-world end-to-end sections)
+DEVICE_FRONTEND = f"{PY} tools/bench_frontend_trackers.py --world device --seeds 21 22 23 24 25 26 --frames 300"
+DEVICE_FRONTEND_QUICK = f"{PY} tools/bench_frontend_trackers.py --world device --seeds 21 --frames 300"
 # the verified front-end at configs/frontend-svoe.yaml's operating point (0.3, chosen on tuning recordings
 # 27-29), for MVPE too: detector and trackers at one threshold
 VERIFY_SETS = "frontend.verify=all,frontend.verify_threshold=0.3,graph.score_threshold=0.3,track.score_threshold=0.3"
@@ -306,10 +309,8 @@ SECTIONS: tuple[Section, ...] = (
             "OpenCV's selective search beside the image segments and 24 proposals a frame instead of 12 "
             "(`frontend.image_selective=single`, `max_proposals=24`; stop 63, opt-in). MVPE's proposals are `geometry+image` since stop 47 (before: `geometry`, 76 / 177 detections on "
             "the instance); SVOE's `geometry+mesh+image` since stop 55 (before: `geometry+image`). The README's first table (end to end from pixels) is this record's default rows.",
-            f"{PY} tools/bench_frontend_trackers.py --world device --seeds 21 22 23 24 25 26 --frames 300 --no-sot "
-            f"--no-guide --no-causal {VERIFY_VARIANT} {SELECTIVE_VARIANT} --json-tag device",
-            quick=f"{PY} tools/bench_frontend_trackers.py --world device --seeds 21 --frames 300 --no-sot --no-guide "
-            "--no-causal --json-tag device",
+            f"{DEVICE_FRONTEND} --no-sot --no-guide --no-causal {VERIFY_VARIANT} {SELECTIVE_VARIANT} --json-tag device",
+            quick=f"{DEVICE_FRONTEND_QUICK} --no-sot --no-guide --no-causal --json-tag device",
             sizes=DEVICE_FRONTEND_SIZES, modules=SET_TRACKING + FRONTEND, quick_min=15),
     Section("bench_frontend_trackers-device-frontend-mvpe", "The same in the device world with `--config frontend-mvpe`",
             "MVPE only: the graph with the stricter stands of the packaged config `frontend-mvpe` (what `egograph "
@@ -317,10 +318,10 @@ SECTIONS: tuple[Section, ...] = (
             "chosen on legacy-world RGB recordings 27-30), on the device world's held-out RGB recordings 21-26 as "
             "in the section above; the front-end's knobs are the defaults, so the detections are those of that "
             "section's default MVPE rows (stop 71).",
-            f"{PY} tools/bench_frontend_trackers.py --world device --seeds 21 22 23 24 25 26 --frames 300 --sets mvpe "
-            "--no-sot --no-guide --no-causal --config frontend-mvpe --json-tag device-frontend-mvpe",
-            quick=f"{PY} tools/bench_frontend_trackers.py --world device --seeds 21 --frames 300 --sets mvpe --no-sot "
-            "--no-guide --no-causal --config frontend-mvpe --json-tag device-frontend-mvpe",
+            f"{DEVICE_FRONTEND} --sets mvpe --no-sot --no-guide --no-causal --config frontend-mvpe "
+            "--json-tag device-frontend-mvpe",
+            quick=f"{DEVICE_FRONTEND_QUICK} --sets mvpe --no-sot --no-guide --no-causal --config frontend-mvpe "
+            "--json-tag device-frontend-mvpe",
             sizes=DEVICE_FRONTEND_SIZES, modules=SET_TRACKING + FRONTEND, quick_min=3,
             after=("bench_frontend_trackers-device",)),
     Section("bench_detect", "`egograph detect`: speed and detections",
