@@ -203,6 +203,28 @@ SECTIONS: tuple[Section, ...] = (
             quick=f"{PY} tools/bench_causal.py --world legacy --seeds {QUICK_HELD_OUT} --frames 1000 --no-latency --json-tag heldout6",
             sizes=(("quick", QUICK_SIZE), ("full", "6 held-out recordings x 3000 frames (seeds 301-306)")),
             modules=SET_TRACKING, quick_min=3),
+    Section("bench_trackers-heldout-robust-device", "Does every egograph tracker beat every baseline? Device world",
+            "`bench_trackers-heldout-robust` on the device world's build of the same 12 held-out seeds (301-312; issue 38: "
+            "photographic surfaces, category meshes at real sizes, hands in AHAT): `memory`, `kf`, `graph` and "
+            "`graph-causal` on the same robust observations, SVOE and MVPE, pooled and per recording. The README's "
+            "tracker table is rendered from this record; no knob was chosen on these recordings, nor in this world.",
+            f"{PY} tools/bench_trackers.py --world device --seeds {HELD_OUT_12} --frames 3000 --modes robust --trackers "
+            "memory kf graph graph-causal --no-oracle --jobs 1 --json-tag heldout-robust-device "
+            "--out .cache/bench_trackers_robust_device",
+            quick=f"{PY} tools/bench_trackers.py --world device --seeds {QUICK_HELD_OUT} --frames 1000 --modes robust "
+            "--trackers memory kf graph graph-causal --no-oracle --jobs 1 --json-tag heldout-robust-device "
+            "--out .cache/bench_trackers_robust_device",
+            sizes=HELD_OUT_12_SIZES, modules=SET_TRACKING, quick_min=3),
+    Section("bench_causal-heldout6-device", "Causal tracking against its ceiling, and P, R, L2 against lag: device world",
+            "`bench_causal-heldout6` on the device world's build of held-out recordings 301-306: graph-causal at "
+            "lags 0, 1, 2, 5, 10 and 30 s against memory, kf, the offline graph and the causal ceiling, robust "
+            "lifting, pooled. The README's lag table is rendered from this record.",
+            f"{PY} tools/bench_causal.py --world device --seeds $(seq 301 306) --frames 3000 --no-latency "
+            "--json-tag heldout6-device",
+            quick=f"{PY} tools/bench_causal.py --world device --seeds {QUICK_HELD_OUT} --frames 1000 --no-latency "
+            "--json-tag heldout6-device",
+            sizes=(("quick", QUICK_SIZE), ("full", "6 held-out recordings x 3000 frames (seeds 301-306)")),
+            modules=SET_TRACKING, quick_min=3),
     Section("bench_causal-latency", "Online API latency",
             "The per-frame latency of the online API (`OnlineTracker.step` + `collect`, lag 0) over a 20,000-frame "
             "synthetic stream of 8 instances (no rendering: lifted observations, each object seen on about a third "
