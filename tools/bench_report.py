@@ -268,6 +268,17 @@ SECTIONS: tuple[Section, ...] = (
             quick=f"{PY} tools/bench_confidence.py --world legacy --seeds {QUICK_HELD_OUT} --frames 1000 "
             "--json-tag heldout12",
             sizes=HELD_OUT_12_SIZES, modules=BASE + SYNTH + LIFT + TRACK, quick_min=2),
+    Section("bench_confidence-heldout12-device", "Answers with a confidence: the held-out set in the device world",
+            "`bench_confidence-heldout12` on the device world's build of the same 12 held-out seeds (301-312; "
+            "issue 38: category meshes at real sizes, hands in AHAT), the calibration and the operating point as "
+            "fitted on legacy-world tuning recordings: whether they carry over to the world the bench tools now "
+            "default to. Pooled and per-recording curves against every baseline's point, P and R at the default "
+            "operating point, reliability and ECE.",
+            f"{PY} tools/bench_confidence.py --world device --seeds {HELD_OUT_12} --frames 3000 --jobs 2 "
+            "--json-tag heldout12-device",
+            quick=f"{PY} tools/bench_confidence.py --world device --seeds {QUICK_HELD_OUT} --frames 1000 "
+            "--json-tag heldout12-device",
+            sizes=HELD_OUT_12_SIZES, modules=BASE + SYNTH + LIFT + TRACK, quick_min=2),
     Section("bench_confidence-heldout-lags", "Answers with a confidence: graph-causal with a lag",
             "The same held-out recordings with graph-causal at lags of 2 s and 30 s (its calibration was fitted "
             "at lag 0: a lagged answer's raw confidence is the place's support, so its ECE is not meant to hold).",
