@@ -1376,10 +1376,12 @@ def _table(doc: dict, title: str) -> dict:
     return next(it for it in doc["items"] if it["type"] == "table" and it["title"].startswith(title))
 
 
-README_RECORDS = ("bench_frontend_trackers-device", "bench_trackers-heldout-robust", "bench_causal-heldout6")
-"""The records the README's score tables are rendered from: egograph end to end from pixels first
-(issue 39), then the trackers on simulated detections. The README quotes them at the sizes the
-docs state (6 device-world recordings x 300 frames; 12 and 6 held-out recordings x 3000 frames),
+README_RECORDS = ("bench_frontend_trackers-device", "bench_trackers-heldout-robust-device",
+                  "bench_causal-heldout6-device")
+"""The records the README's score tables are rendered from, all of the device world (issue 38):
+egograph end to end from pixels first (issue 39), then the trackers on simulated detections. The
+README quotes them at the sizes the docs state (6 recordings x 300 frames; 12 and 6 held-out
+recordings x 3000 frames),
 so it reads its own copies in ``docs/bench/readme/``: a full-tier regeneration of these sections refreshes them; a quick-tier one
 changes only docs/benchmarks.md."""
 
@@ -1429,7 +1431,7 @@ def readme_scores(docs: dict[str, dict], repo: Path = REPO) -> str | None:
     page's staleness, :func:`modules_changed`): a quick-tier regeneration refreshes the page, not
     these copies."""
     fe = docs.get("bench_frontend_trackers-device")
-    tr, ca = docs.get("bench_trackers-heldout-robust"), docs.get("bench_causal-heldout6")
+    tr, ca = docs.get("bench_trackers-heldout-robust-device"), docs.get("bench_causal-heldout6-device")
     if tr is None or ca is None or fe is None:
         return None
     lines = pixels_rows(fe) + [""]
