@@ -259,6 +259,15 @@ SECTIONS: tuple[Section, ...] = (
             sizes=(("quick", "the demo's first recording x 900 frames (seed 1)"),
                    ("full", "the demo's 3 recordings x 900 frames (seeds 1-3)")),
             modules=BASE + SYNTH + LIFT + TRACK, quick_min=2),
+    Section("bench_confidence-demo-device", "Answers with a confidence: the demo's recordings in the device world",
+            "`bench_confidence-demo` on the device world's build of the demo's seeds 1-3 at 900 frames: the world "
+            "`bash tools/demo.sh` renders by default, its detections simulated here as for every tracker-only "
+            "section. The calibration and the operating point are those fitted on legacy-world tuning recordings.",
+            f"{PY} tools/bench_confidence.py --world device --seeds 1 2 3 --frames 900 --jobs 2 --json-tag demo-device",
+            quick=f"{PY} tools/bench_confidence.py --world device --seeds 1 --frames 900 --json-tag demo-device",
+            sizes=(("quick", "the demo's first recording x 900 frames (seed 1)"),
+                   ("full", "the demo's 3 recordings x 900 frames (seeds 1-3)")),
+            modules=BASE + SYNTH + LIFT + TRACK, quick_min=4),
     Section("bench_confidence-heldout12", "Answers with a confidence: the issue's held-out set at full length",
             "The same measurement on the 12 held-out recordings of 3000 frames the issue asks for (seeds "
             "301-312, legacy world, lag 0), none of which any knob of the calibration or the operating point "
