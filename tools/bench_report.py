@@ -1468,8 +1468,8 @@ def readme_scores(docs: dict[str, dict], repo: Path = REPO) -> str | None:
         reg, commit = regeneration_of(doc), (doc.get("egograph") or {}).get("commit") or "no commit"
         changed = modules_changed(by_stem[stem], doc, repo) if stem in by_stem else None
         since = "" if changed is None else ", **code changed since**" if changed else ", code unchanged since"
-        made.append((f"`{doc['tool']}` {reg.get('tier', 'by hand')} tier at `{commit[:10]}`" if reg
-                     else f"`{doc['tool']}` by hand at `{commit[:10]}`") + since)
+        made.append((f"`{stem}` {reg.get('tier', 'by hand')} tier at `{commit[:10]}`" if reg
+                     else f"`{stem}` by hand at `{commit[:10]}`") + since)
     lines += ["", "Records: " + "; ".join(made) + " (docs/bench/readme/)."]
     return "\n".join(lines)
 
