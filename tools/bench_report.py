@@ -148,6 +148,26 @@ CONFIDENCE_SIZES = (("quick", "2 held-out recordings x 900 frames (seeds 1, 301)
 MILD_POSE_ERROR = ("--synth-set pose_error.drift_trans=0.004 --synth-set pose_error.drift_rot=0.06 "
                    "--synth-set pose_error.jump_rate=0.2")
 
+def heldout_robust(world: str, seeds: str, frames: int, suffix: str = "") -> str:
+    """bench_trackers' dominance run (memory, kf, graph, graph-causal on robust lifting) in ``world``;
+    ``suffix`` tells a world's twin section apart (its json tag and its --out folder)."""
+    return (f"{PY} tools/bench_trackers.py --world {world} --seeds {seeds} --frames {frames} --modes robust "
+            f"--trackers memory kf graph graph-causal --no-oracle --jobs 1 --json-tag heldout-robust{suffix} "
+            f"--out .cache/bench_trackers_robust{suffix.replace('-', '_')}")
+
+
+def causal_lags(world: str, seeds: str, frames: int, suffix: str = "") -> str:
+    """bench_causal's lag table without the latency stream, in ``world``."""
+    return (f"{PY} tools/bench_causal.py --world {world} --seeds {seeds} --frames {frames} --no-latency "
+            f"--json-tag heldout6{suffix}")
+
+
+def confidence(world: str, seeds: str, frames: int, tag: str, jobs: bool) -> str:
+    """bench_confidence on ``seeds`` x ``frames`` in ``world`` (``jobs``: two recordings at a time)."""
+    return (f"{PY} tools/bench_confidence.py --world {world} --seeds {seeds} --frames {frames}"
+            f"{' --jobs 2' if jobs else ''} --json-tag {tag}")
+
+
 SECTIONS: tuple[Section, ...] = (
     Section("bench_trackers", "Trackers on the held-out benchmark set",
             "Every tracker (`memory`, `kf`, `graph`, `graph-causal`, the `+graph` smoothing of memory and kf, and "
@@ -189,18 +209,13 @@ SECTIONS: tuple[Section, ...] = (
             "recordings (seeds 301-312; no knob was chosen on them), SVOE and MVPE: the tables pooled, then "
             "whether each egograph tracker's P and R at every threshold are at least memory's and kf's and its L2 "
             "below theirs, pooled and (offline graph) on every recording, with the figures that miss.",
-            f"{PY} tools/bench_trackers.py --world legacy --seeds {HELD_OUT_12} --frames 3000 --modes robust --trackers memory kf "
-            "graph graph-causal --no-oracle --jobs 1 --json-tag heldout-robust --out .cache/bench_trackers_robust",
-            quick=f"{PY} tools/bench_trackers.py --world legacy --seeds {QUICK_HELD_OUT} --frames 1000 --modes robust "
-            "--trackers memory kf graph graph-causal --no-oracle --jobs 1 --json-tag heldout-robust "
-            "--out .cache/bench_trackers_robust",
+            heldout_robust("legacy", HELD_OUT_12, 3000), quick=heldout_robust("legacy", QUICK_HELD_OUT, 1000),
             sizes=HELD_OUT_12_SIZES, modules=SET_TRACKING, quick_min=3),
     Section("bench_causal-heldout6", "Causal tracking against its ceiling, and P, R, L2 against lag (issue 29)",
             "graph-causal at lags 0, 1, 2, 5, 10 and 30 s against memory, kf, the offline graph and the causal "
             "ceiling on held-out recordings 301-306, robust lifting, pooled: issue 29's causal targets and the lag "
             "at which the causal answer reaches 95 % of the offline recall at 0.25 m.",
-            f"{PY} tools/bench_causal.py --world legacy --seeds $(seq 301 306) --frames 3000 --no-latency --json-tag heldout6",
-            quick=f"{PY} tools/bench_causal.py --world legacy --seeds {QUICK_HELD_OUT} --frames 1000 --no-latency --json-tag heldout6",
+            causal_lags("legacy", "$(seq 301 306)", 3000), quick=causal_lags("legacy", QUICK_HELD_OUT, 1000),
             sizes=(("quick", QUICK_SIZE), ("full", "6 held-out recordings x 3000 frames (seeds 301-306)")),
             modules=SET_TRACKING, quick_min=3),
     Section("bench_trackers-heldout-robust-device", "Does every egograph tracker beat every baseline? Device world",
@@ -208,21 +223,15 @@ SECTIONS: tuple[Section, ...] = (
             "photographic surfaces, category meshes at real sizes, hands in AHAT): `memory`, `kf`, `graph` and "
             "`graph-causal` on the same robust observations, SVOE and MVPE, pooled and per recording. The README's "
             "tracker table is rendered from this record; no knob was chosen on these recordings, nor in this world.",
-            f"{PY} tools/bench_trackers.py --world device --seeds {HELD_OUT_12} --frames 3000 --modes robust --trackers "
-            "memory kf graph graph-causal --no-oracle --jobs 1 --json-tag heldout-robust-device "
-            "--out .cache/bench_trackers_robust_device",
-            quick=f"{PY} tools/bench_trackers.py --world device --seeds {QUICK_HELD_OUT} --frames 1000 --modes robust "
-            "--trackers memory kf graph graph-causal --no-oracle --jobs 1 --json-tag heldout-robust-device "
-            "--out .cache/bench_trackers_robust_device",
+            heldout_robust("device", HELD_OUT_12, 3000, "-device"),
+            quick=heldout_robust("device", QUICK_HELD_OUT, 1000, "-device"),
             sizes=HELD_OUT_12_SIZES, modules=SET_TRACKING, quick_min=3),
     Section("bench_causal-heldout6-device", "Causal tracking against its ceiling, and P, R, L2 against lag: device world",
             "`bench_causal-heldout6` on the device world's build of held-out recordings 301-306: graph-causal at "
             "lags 0, 1, 2, 5, 10 and 30 s against memory, kf, the offline graph and the causal ceiling, robust "
             "lifting, pooled. The README's lag table is rendered from this record.",
-            f"{PY} tools/bench_causal.py --world device --seeds $(seq 301 306) --frames 3000 --no-latency "
-            "--json-tag heldout6-device",
-            quick=f"{PY} tools/bench_causal.py --world device --seeds {QUICK_HELD_OUT} --frames 1000 --no-latency "
-            "--json-tag heldout6-device",
+            causal_lags("device", "$(seq 301 306)", 3000, "-device"),
+            quick=causal_lags("device", QUICK_HELD_OUT, 1000, "-device"),
             sizes=(("quick", QUICK_SIZE), ("full", "6 held-out recordings x 3000 frames (seeds 301-306)")),
             modules=SET_TRACKING, quick_min=3),
     Section("bench_causal-latency", "Online API latency",
@@ -254,8 +263,7 @@ SECTIONS: tuple[Section, ...] = (
             "at 900 frames, without 301-303 (the section above pools all six). Added at stop 68: pooled ECE "
             "over six recordings let errors of opposite sign in one confidence bin (over-confident stands on "
             "1-3, under-confident on 301-303) partly cancel, so the six-recording figure is not the issue's.",
-            f"{PY} tools/bench_confidence.py --world legacy --seeds 1 2 3 --frames 900 --jobs 2 --json-tag demo",
-            quick=f"{PY} tools/bench_confidence.py --world legacy --seeds 1 --frames 900 --json-tag demo",
+            confidence("legacy", "1 2 3", 900, "demo", jobs=True), quick=confidence("legacy", "1", 900, "demo", jobs=False),
             sizes=(("quick", "the demo's first recording x 900 frames (seed 1)"),
                    ("full", "the demo's 3 recordings x 900 frames (seeds 1-3)")),
             modules=BASE + SYNTH + LIFT + TRACK, quick_min=2),
@@ -263,8 +271,8 @@ SECTIONS: tuple[Section, ...] = (
             "`bench_confidence-demo` on the device world's build of the demo's seeds 1-3 at 900 frames: the world "
             "`bash tools/demo.sh` renders by default, its detections simulated here as for every tracker-only "
             "section. The calibration and the operating point are those fitted on legacy-world tuning recordings.",
-            f"{PY} tools/bench_confidence.py --world device --seeds 1 2 3 --frames 900 --jobs 2 --json-tag demo-device",
-            quick=f"{PY} tools/bench_confidence.py --world device --seeds 1 --frames 900 --json-tag demo-device",
+            confidence("device", "1 2 3", 900, "demo-device", jobs=True),
+            quick=confidence("device", "1", 900, "demo-device", jobs=False),
             sizes=(("quick", "the demo's first recording x 900 frames (seed 1)"),
                    ("full", "the demo's 3 recordings x 900 frames (seeds 1-3)")),
             modules=BASE + SYNTH + LIFT + TRACK, quick_min=4),
@@ -273,9 +281,8 @@ SECTIONS: tuple[Section, ...] = (
             "301-312, legacy world, lag 0), none of which any knob of the calibration or the operating point "
             "was chosen on: pooled and per-recording curves against every baseline's point, P and R at the "
             "default operating point, reliability and ECE.",
-            f"{PY} tools/bench_confidence.py --world legacy --seeds {HELD_OUT_12} --frames 3000 --jobs 2 --json-tag heldout12",
-            quick=f"{PY} tools/bench_confidence.py --world legacy --seeds {QUICK_HELD_OUT} --frames 1000 "
-            "--json-tag heldout12",
+            confidence("legacy", HELD_OUT_12, 3000, "heldout12", jobs=True),
+            quick=confidence("legacy", QUICK_HELD_OUT, 1000, "heldout12", jobs=False),
             sizes=HELD_OUT_12_SIZES, modules=BASE + SYNTH + LIFT + TRACK, quick_min=2),
     Section("bench_confidence-heldout12-device", "Answers with a confidence: the held-out set in the device world",
             "`bench_confidence-heldout12` on the device world's build of the same 12 held-out seeds (301-312; "
@@ -283,10 +290,8 @@ SECTIONS: tuple[Section, ...] = (
             "fitted on legacy-world tuning recordings: whether they carry over to the world the bench tools now "
             "default to. Pooled and per-recording curves against every baseline's point, P and R at the default "
             "operating point, reliability and ECE.",
-            f"{PY} tools/bench_confidence.py --world device --seeds {HELD_OUT_12} --frames 3000 --jobs 2 "
-            "--json-tag heldout12-device",
-            quick=f"{PY} tools/bench_confidence.py --world device --seeds {QUICK_HELD_OUT} --frames 1000 "
-            "--json-tag heldout12-device",
+            confidence("device", HELD_OUT_12, 3000, "heldout12-device", jobs=True),
+            quick=confidence("device", QUICK_HELD_OUT, 1000, "heldout12-device", jobs=False),
             sizes=HELD_OUT_12_SIZES, modules=BASE + SYNTH + LIFT + TRACK, quick_min=2),
     Section("bench_confidence-heldout-lags", "Answers with a confidence: graph-causal with a lag",
             "The same held-out recordings with graph-causal at lags of 2 s and 30 s (its calibration was fitted "
@@ -1390,9 +1395,9 @@ README_RECORDS = ("bench_frontend_trackers-device", "bench_trackers-heldout-robu
 """The records the README's score tables are rendered from, all of the device world (issue 38):
 egograph end to end from pixels first (issue 39), then the trackers on simulated detections. The
 README quotes them at the sizes the docs state (6 recordings x 300 frames; 12 and 6 held-out
-recordings x 3000 frames),
-so it reads its own copies in ``docs/bench/readme/``: a full-tier regeneration of these sections refreshes them; a quick-tier one
-changes only docs/benchmarks.md."""
+recordings x 3000 frames), so it reads its own copies in ``docs/bench/readme/``: a full-tier
+regeneration of these sections refreshes them; a quick-tier one changes only docs/benchmarks.md.
+In that order: :func:`readme_scores` reads them as (end to end, trackers, lags)."""
 
 README_DIR_NAME = "readme"
 
@@ -1439,8 +1444,7 @@ def readme_scores(docs: dict[str, dict], repo: Path = REPO) -> str | None:
     each record's tier and commit, and whether the code its section exercises changed since (the
     page's staleness, :func:`modules_changed`): a quick-tier regeneration refreshes the page, not
     these copies."""
-    fe = docs.get("bench_frontend_trackers-device")
-    tr, ca = docs.get("bench_trackers-heldout-robust-device"), docs.get("bench_causal-heldout6-device")
+    fe, tr, ca = (docs.get(stem) for stem in README_RECORDS)
     if tr is None or ca is None or fe is None:
         return None
     lines = pixels_rows(fe) + [""]
