@@ -254,9 +254,8 @@ SECTIONS: tuple[Section, ...] = (
             "calibration error at 0.25 m. Held out: the calibration and the operating point were fitted on tuning "
             "seeds (`--fit`). The demo's seeds 1-3 and held-out 301-303, all at 900 frames; the issue's 12 "
             "held-out recordings of 3000 frames are the next section.",
-            f"{PY} tools/bench_confidence.py --world legacy --seeds 1 2 3 301 302 303 --frames 900 --jobs 2 "
-            "--json-tag heldout",
-            quick=f"{PY} tools/bench_confidence.py --world legacy --seeds 1 301 --frames 900 --json-tag heldout",
+            confidence("legacy", "1 2 3 301 302 303", 900, "heldout", jobs=True),
+            quick=confidence("legacy", "1 301", 900, "heldout", jobs=False),
             sizes=CONFIDENCE_SIZES, modules=BASE + SYNTH + LIFT + TRACK, quick_min=20),
     Section("bench_confidence-demo", "Answers with a confidence: the demo's recordings alone (seeds 1-3)",
             "The same measurement on the issue's second held-out set exactly as it names it, the demo's seeds 1-3 "
