@@ -57,6 +57,9 @@ class DetectReport:
     enrolled_size_m: dict[int, float] = field(default_factory=dict)   # instance -> its size at enrollment (verification)
     size_not_used: str = ""      # the enrolled sizes outside frontend.verify_size_range_m, which the verification ignores
     size_note: str = ""          # why the verification scored boxes without their size at depth
+    # instance -> (head turn rate at its SVOE box, deg/s; PV frames of the views added; the object
+    # point's source or why there is none): frontend.svoe_sharp_views
+    sharp_views: dict[int, tuple[float, list[int], str]] = field(default_factory=dict)
 
     def name(self, inst: int) -> str:
         return self.names[inst] if inst < len(self.names) else str(inst)
@@ -82,6 +85,14 @@ class DetectReport:
                          f"{len(self.enrolled_size_m)} instances had depth behind their box"
                          + (" (" + ", ".join(f"{k} {100 * v:.0f} cm" for k, v in sorted(known.items())) + ")"
                             if known else ""))
+        if self.sharp_views:
+            lines.append("  SVOE boxes drawn while the head turned fast, views added from sharp frames "
+                         "(frontend.svoe_sharp_views): " + "; ".join(
+                             f"{k} at {rate:.0f} deg/s: " + (
+                                 f"{len(fr)} (frames {', '.join(map(str, fr))}; point from {how})" if fr else
+                                 "none (no sharp frame nearby holds the box)" if how in ("depth", "mesh") else
+                                 f"none ({how})")
+                             for k, (rate, fr, how) in sorted(self.sharp_views.items())))
         if self.size_not_used:
             lines.append(f"  {self.size_not_used}")
         if self.size_note:
@@ -130,17 +141,29 @@ def svoe_boxes(rec: Recording, report: DetectReport) -> dict[int, tuple[int, tup
 
 
 def enroll_svoe(rec: Recording, encoder, cfg, report: DetectReport, n_labels: int = 0,
-                images: dict | None = None, boxes: dict | None = None) -> dict[int, np.ndarray]:
+                images: dict | None = None, boxes: dict | None = None, lift_cfg=None) -> dict[int, np.ndarray]:
     """Views of each instance's ``svoe.txt`` box (:func:`svoe_boxes`; see
-    :func:`egograph.frontend.matching.svoe_views`); ``images``, when given, receives each
-    instance's view crops (RGB) for verification, ``boxes`` each instance's (PV frame index, box
-    clipped to the image)."""
-    from egograph.frontend.matching import svoe_views
+    :func:`egograph.frontend.matching.svoe_views`), and, where the head turned fast at the box's
+    frame, the box carried to nearby sharp frames (``frontend.svoe_sharp_views``, with ``lift_cfg``;
+    :mod:`egograph.frontend.sharp_views`); ``images``, when given, receives each instance's view crops
+    (RGB) for verification, ``boxes`` each instance's (PV frame index, box clipped to the image)."""
+    from egograph.frontend.matching import crop, svoe_views
     from egograph.steps.recording import require_svoe
 
     views = {}
+    sharp = _SharpEnrollment(rec, cfg, lift_cfg) if cfg.svoe_sharp_views > 0 and lift_cfg is not None else None
     for inst, (i, box, rgb) in svoe_boxes(rec, report).items():
         crops = svoe_views(rgb, box, cfg)
+        if sharp is not None and crops and sharp.smeared(i):
+            got = sharp.views(i, box, rgb.shape[:2])
+            used = []
+            for f, b in zip(got.frames, got.boxes):
+                im = rec.rgb(f)
+                c = crop(im, b, cfg.crop_margin) if im is not None else None
+                if c is not None:
+                    crops.append(c)
+                    used.append(f)
+            report.sharp_views[inst] = (float(sharp.rate[i]), used, got.point_from)
         views[inst] = encoder.embed(crops)
         if images is not None:
             images[inst] = crops
@@ -150,6 +173,36 @@ def enroll_svoe(rec: Recording, encoder, cfg, report: DetectReport, n_labels: in
         if inst not in views and inst not in report.not_enrolled:
             report.not_enrolled[inst] = (str(require_svoe(rec)), "no box for this instance")
     return views
+
+
+class _SharpEnrollment:
+    """What :func:`enroll_svoe` needs for ``frontend.svoe_sharp_views``, made once per recording: the
+    head's turn rate per PV frame and the robust lift's context (rays, the mesh)."""
+
+    def __init__(self, rec: Recording, cfg, lift_cfg):
+        from egograph.frontend.sharp_views import turn_rate_dps
+        from egograph.geometry.robust_lift import robust_context
+
+        self.rec, self.cfg, self.lift_cfg = rec, cfg, lift_cfg
+        self.rate = turn_rate_dps(rec.pv_poses, rec.timestamps)
+        self._ctx = None
+        self._robust_context = robust_context
+
+    def smeared(self, i: int) -> bool:
+        """Whether the head turned faster than ``svoe_sharp_dps`` at PV frame ``i`` (unknown: no)."""
+        return bool(self.rate[i] > self.cfg.svoe_sharp_dps)
+
+    def views(self, i: int, box, shape):
+        """:func:`egograph.frontend.sharp_views.sharp_views` of the box (none, with the reason, when the
+        recording has no depth or mesh to place it by)."""
+        from egograph.frontend.sharp_views import SharpViews, sharp_views
+
+        try:
+            if self._ctx is None:
+                self._ctx = self._robust_context(self.rec, self.lift_cfg, [])
+            return sharp_views(self.rec, i, box, shape, self.cfg, self.lift_cfg, self.rate, self._ctx)
+        except (EgographError, OSError, ValueError) as err:
+            return SharpViews([], [], f"no object point: {err}")
 
 
 def plausible_sizes(sizes: dict[int, float], size_range_m) -> dict[int, float]:
@@ -693,7 +746,7 @@ def enroll_views(rec: Recording, enroll: str, enc, cfg, report: DetectReport,
     names = read_labels(rec) or []
     report.names = names
     fcfg = cfg.frontend
-    views = enroll_svoe(rec, enc, fcfg, report, len(names), images, boxes) if enroll == "svoe" else \
+    views = enroll_svoe(rec, enc, fcfg, report, len(names), images, boxes, cfg.lift) if enroll == "svoe" else \
         enroll_mvpe(rec, enc, fcfg, names, report, images)
     for inst, (where, why) in report.not_enrolled.items():
         report_problem(rec.strict, where, f"instance {inst} ({report.name(inst)}) not enrolled: {why}")
@@ -755,7 +808,7 @@ def detect(rec: Recording, enroll: str, cfg, out: str | Path, *, encoder: str | 
     if frames is not None:   # a sample of the frames is another run than the whole recording
         inputs["frames"] = [int(i) for i in frames]
     verifying = fcfg.verify in ("all", enroll) and teacher is None
-    if verifying:   # the boxes' sizes at depth (robust lift)
+    if verifying or (enroll == "svoe" and fcfg.svoe_sharp_views > 0):   # boxes' sizes, points behind boxes
         depends["lift"] = to_dict(cfg.lift)
     if adapt_id:   # unadapted runs keep the fingerprint they had before adaptation existed
         inputs["adapt"] = adapt_id
