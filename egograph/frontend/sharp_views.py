@@ -29,7 +29,8 @@ from egograph.geometry.hl2ss import invert_rigid, pose_validity, pv_project, pv_
 def turn_rate_dps(poses: np.ndarray, timestamps: np.ndarray) -> np.ndarray:
     """The head's turn rate at each PV frame (deg/s): the rotation angle between consecutive camera
     poses ((N, 4, 4), camera -> world) over their time gap (``timestamps``, ticks), averaged over
-    the gaps before and after the frame (one frame: 0). Invalid poses give NaN rates next to them."""
+    the gaps before and after the frame (one frame: 0). Next to an invalid pose (not a rotation) the
+    rate means nothing; :func:`projected_boxes` and :func:`object_point` check pose validity."""
     r = np.asarray(poses, np.float64)[:, :3, :3]
     n = len(r)
     if n < 2:
