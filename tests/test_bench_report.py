@@ -290,6 +290,26 @@ def test_a_front_end_default_does_not_mark_the_tracker_sections_changed(tmp_path
     assert bench_report.modules_digest(tracker, repo, scheme=1) != bench_report.modules_digest(tracker, repo)
 
 
+def test_a_front_end_operating_point_marks_only_the_front_end_sections_changed(tmp_path):
+    """Scheme 6: a packaged front-end config (``frontend-svoe.yaml``), graph and track blocks included,
+    counts only for sections that exercise egograph/frontend; default.yaml's graph block for all."""
+    repo, cfg = _config_repo(tmp_path, "graph:\n  min_observations: 4\n")
+    op = cfg.parent / "frontend-svoe.yaml"
+    op.write_text("frontend:\n  verify_threshold: 0.3\ngraph:\n  score_threshold: 0.3\n")
+    tracker = ("tools/bench_madeup.py", "egograph/configs")
+    frontend = (*tracker, "egograph/frontend")
+    t0, f0 = bench_report.modules_digest(tracker, repo), bench_report.modules_digest(frontend, repo)
+    t5 = bench_report.modules_digest(tracker, repo, scheme=5)
+    op.write_text("frontend:\n  verify_threshold: 0.5\ngraph:\n  score_threshold: 0.5\n")
+    assert bench_report.modules_digest(tracker, repo) == t0
+    assert bench_report.modules_digest(frontend, repo) != f0
+    assert bench_report.modules_digest(tracker, repo, scheme=5) != t5   # scheme 5 counted its graph block
+    cfg.write_text("graph:\n  min_observations: 6\n")
+    assert bench_report.modules_digest(tracker, repo) != t0
+    assert bench_report.is_frontend_config("egograph/configs/frontend-mvpe.yaml")
+    assert not bench_report.is_frontend_config("egograph/configs/synth/frontend-x.yaml")
+
+
 def test_old_digests_are_upgraded_only_where_their_commit_reproduces_them(tmp_path):
     import subprocess
 

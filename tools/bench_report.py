@@ -578,7 +578,7 @@ DIGEST_SUFFIXES = (".py", ".yaml", ".yml", ".json", ".txt")
 
 
 CONFIG_DIR = "egograph/configs"
-DIGEST_SCHEME = 5
+DIGEST_SCHEME = 6
 """1: every file's bytes. 2: the same for code; a packaged YAML config counts by what the section's
 code can read of it (:func:`config_view`): its parsed content, without comments or layout, and without
 its ``frontend`` block when the section does not exercise ``egograph/frontend``. Under 1 a change of a
@@ -593,7 +593,11 @@ by): a docstring, comment or layout edit runs nothing, a changed statement or kn
 string standing alone as a statement is dropped too, not only a module's, class's or function's first:
 the attribute docstrings under a constant or a dataclass field (``ANSWER_KINDS``), which Python
 discards as it does comments. Under 4 correcting the count in ``ANSWER_KINDS``'s docstring marked the
-24 tracking sections changed."""
+24 tracking sections changed. 6: as 5, and a packaged front-end configuration (``frontend-*.yaml``: an
+operating point of ``egograph detect`` and of the trackers on its detections) counts only for sections
+that exercise ``egograph/frontend``, the only ones whose commands name it (``--config frontend-mvpe``).
+Under 5 choosing ``frontend-svoe``'s operating point again (its ``graph`` and ``track`` score thresholds)
+marked every tracking section on simulated detections changed."""
 
 
 @functools.lru_cache(maxsize=None)
@@ -693,6 +697,13 @@ def exercises(paths: tuple[str, ...] | list[str], package: str) -> bool:
     return any(p == package or p.startswith(package + "/") or package.startswith(p + "/") for p in paths)
 
 
+def is_frontend_config(name: str) -> bool:
+    """Whether ``name`` (relative to the repository) is a packaged front-end configuration
+    (``egograph/configs/frontend-*.yaml``), counted by :data:`DIGEST_SCHEME` 6 only for front-end sections."""
+    p = Path(name)
+    return p.parent.as_posix() == CONFIG_DIR and p.name.startswith("frontend-") and p.suffix in (".yaml", ".yml")
+
+
 def config_view(data: bytes, paths: tuple[str, ...] | list[str]) -> bytes:
     """The part of a packaged YAML config that code under ``paths`` can read, canonical (sorted JSON):
     a section that does not exercise ``egograph/frontend`` reads no ``frontend`` block."""
@@ -780,6 +791,8 @@ def modules_digest(paths: tuple[str, ...] | list[str], repo: Path = REPO, *, sch
         for name, data in files.items():
             if closure is not None and name.startswith("egograph/") and name.endswith(".py") and name not in closure:
                 continue   # egograph code the section cannot import
+            if scheme >= 6 and is_frontend_config(name) and not exercises(paths, "egograph/frontend"):
+                continue   # a front-end operating point, read only by runs that detect
             if scheme >= 2 and name.startswith(CONFIG_DIR + "/") and Path(name).suffix in (".yaml", ".yml"):
                 data = config_view(data, paths)
             elif scheme >= 4 and name.endswith(".py"):
