@@ -310,6 +310,20 @@ def test_a_front_end_operating_point_marks_only_the_front_end_sections_changed(t
     assert not bench_report.is_frontend_config("egograph/configs/synth/frontend-x.yaml")
 
 
+def test_the_verified_rows_run_at_frontend_svoes_operating_point():
+    """The device record's verified variant is, for SVOE, exactly ``--config frontend-svoe``: detector
+    and trackers at the packaged threshold."""
+    from egograph.core.config import load_config
+    from egograph.core.resources import packaged_config_or_error
+    from egograph.steps.settings import EgographConfig
+
+    preset = load_config(EgographConfig, packaged_config_or_error("frontend-svoe"))
+    sets = dict(kv.split("=") for kv in bench_report.VERIFY_SETS.split(","))
+    assert sets["frontend.verify"] == "all"
+    for key in ("frontend.verify_threshold", "graph.score_threshold", "track.score_threshold"):
+        assert float(sets[key]) == preset.frontend.verify_threshold
+
+
 def test_old_digests_are_upgraded_only_where_their_commit_reproduces_them(tmp_path):
     import subprocess
 

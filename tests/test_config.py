@@ -241,7 +241,7 @@ def test_the_frontend_svoe_configuration_shares_one_operating_point_between_dete
     preset = load_config(EgographConfig, packaged_config_or_error("frontend-svoe"))
     default = load_config(EgographConfig, packaged_config_or_error("default"))
     assert preset.frontend.verify == "svoe"
-    assert preset.graph.score_threshold == preset.track.score_threshold == preset.frontend.verify_threshold == 0.3
+    assert preset.graph.score_threshold == preset.track.score_threshold == preset.frontend.verify_threshold == 0.45
     a, b = to_dict(preset), to_dict(default)
     changed = {(s, k) for s in a for k in a[s] if a[s][k] != b[s][k]}
     assert changed == {("frontend", "verify"), ("frontend", "verify_threshold"), ("graph", "score_threshold"),

@@ -164,7 +164,7 @@ def test_the_demo_detects_in_device_like_frames_and_ends_with_the_path_of_its_pi
     # operating point, det_conf says whether local features verified it
     rows = [line.split() for f in (out / "detections" / "svoe").glob("*.txt") for line in f.read_text().splitlines()]
     assert rows or "svoe" not in tracked
-    assert all(float(r[5]) in (0.0, 1.0) and 0.3 <= float(r[6]) <= 1.0 for r in rows)
+    assert all(float(r[5]) in (0.0, 1.0) and 0.45 <= float(r[6]) <= 1.0 for r in rows)
     check_demo(out, lines, tracked, pv_frames=True)
 
 

@@ -127,9 +127,11 @@ DEVICE_FRONTEND_SIZES = (("quick", "1 device-world RGB recording x 300 frames (s
 # bench_frontend_trackers on those recordings, per tier (both device-world end-to-end sections)
 DEVICE_FRONTEND = f"{PY} tools/bench_frontend_trackers.py --world device --seeds 21 22 23 24 25 26 --frames 300"
 DEVICE_FRONTEND_QUICK = f"{PY} tools/bench_frontend_trackers.py --world device --seeds 21 --frames 300"
-# the verified front-end at configs/frontend-svoe.yaml's operating point (0.3, chosen on tuning recordings
+# the verified front-end at configs/frontend-svoe.yaml's operating point (0.45, chosen on tuning recordings
 # 27-29), for MVPE too: detector and trackers at one threshold
-VERIFY_SETS = "frontend.verify=all,frontend.verify_threshold=0.3,graph.score_threshold=0.3,track.score_threshold=0.3"
+VERIFY_THRESHOLD = 0.45
+VERIFY_SETS = (f"frontend.verify=all,frontend.verify_threshold={VERIFY_THRESHOLD},"
+               f"graph.score_threshold={VERIFY_THRESHOLD},track.score_threshold={VERIFY_THRESHOLD}")
 VERIFY_VARIANT = f"--variant verify:{VERIFY_SETS}"
 # issue 39's proposals: selective search beside the segments, at the cap where it pays (docs/frontend.md, stop 63)
 SELECTIVE = "frontend.image_selective=single"
@@ -350,7 +352,7 @@ SECTIONS: tuple[Section, ...] = (
             "which no knob was tuned in this world; the front-end's tuning seeds are 27-28): the share of true "
             "detections, the visible instance-frames found, and the graph against the paper's pipeline on those "
             "detections, with the opt-in verification (issue 39, `frontend.verify=all`, detector and trackers at "
-            "threshold 0.3: for SVOE exactly `--config frontend-svoe`) as a second front-end row in the full tier (the "
+            f"threshold {VERIFY_THRESHOLD}: for SVOE exactly `--config frontend-svoe`) as a second front-end row in the full tier (the "
             "quick tier has the current front-end only), and in the full tier a third: the verified front-end with "
             "OpenCV's selective search beside the image segments and 24 proposals a frame instead of 12 "
             "(`frontend.image_selective=single`, `max_proposals=24`; stop 63, opt-in). MVPE's proposals are `geometry+image` since stop 47 (before: `geometry`, 76 / 177 detections on "

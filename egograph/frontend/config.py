@@ -17,14 +17,15 @@ PROPOSAL_ORDERS = ("objectness", "source")
 SELECTIVE_MODES = ("none", "single", "fast")
 EXCLUSIVE_SETS = ("none", "svoe", "mvpe", "all")
 # the SVOE calibration map (verify_calib_svoe) and how it was fitted
-CALIB_SVOE = [-3.0546, 0.7936, 1.005, 0.5393, -1.6094, 1.9977, -0.2605]
-CALIB_SVOE_FIT = ("tools/fit_verify.py --calibration-only --from-collected on the device-like tuning recordings "
-                  "27-32 (300 frames, every frame; the pair model kept; an enrolled size outside "
-                  "verify_size_range_m unknown, as egograph detect uses it; cross-validated ECE 0.130 at 0.3 over "
-                  "198 detections). Held out (recordings 21-26, the pairs collected as these, frontend-svoe's "
-                  "threshold 0.3): against the map without the size terms (fitted on 27-28) 267 detections "
-                  "instead of 375, 171 on the instance instead of 152, 5 on another instance instead of 13; ECE "
-                  "0.104 instead of 0.207 (the sampling floor at 267 detections 0.054)")
+CALIB_SVOE = [-2.1214, 1.0322, 0.6332, 0.1899, -1.5941, 2.0692, -0.0131]
+CALIB_SVOE_FIT = ("tools/fit_verify.py --seeds 27 28 29 30 31 32 --frames 300 --stride 1 --world device --sets svoe "
+                  "--calibration-only on the device-like tuning recordings (every frame; the pair model kept; the SVOE "
+                  "views from sharp frames of frontend.svoe_sharp_views included, as egograph detect adds them; "
+                  "35,016 shortlisted pairs; an enrolled size outside verify_size_range_m unknown, as egograph detect "
+                  "uses it). Cross-validated over the six recordings at frontend-svoe's threshold 0.45: 225 "
+                  "detections, 134 on the instance, ECE 0.078 (0.098 at 0.3, 0.064 at 0.5). The map before it (fitted "
+                  "on the smeared enrollments alone, stop 56) ran low once the sharp views came: held-out ECE 0.242 "
+                  "at 0.3 (docs/frontend.md)")
 
 
 @dataclass
@@ -278,8 +279,9 @@ class FrontendConfig(Checked):
                                          "score_threshold (0.6) drops detections below it: track verified detections "
                                          "with --set graph.score_threshold=0.15 (and track.score_threshold for the "
                                          "baselines), as egograph detect's hint says. configs/frontend-svoe.yaml sets "
-                                         "0.3 for detector and trackers alike (the middle of the thresholds that met "
-                                         "the issue's ratios on tuning recordings 27-29; figures in that file)",
+                                         "0.45 for detector and trackers alike (the middle of the thresholds that met "
+                                         "the issue's ratios on tuning recordings 27-29 with verify_calib_svoe; figures "
+                                         "in that file)",
                                    min=0.0, max=1.0)
     verify_side_px: int = knob(160, "verification: crops and enrollment views are resampled so that their longer "
                                     "side is this many pixels before SIFT (small crops enlarged)", min=32)

@@ -181,12 +181,10 @@ class _SharpEnrollment:
 
     def __init__(self, rec: Recording, cfg, lift_cfg):
         from egograph.frontend.sharp_views import turn_rate_dps
-        from egograph.geometry.robust_lift import robust_context
 
         self.rec, self.cfg, self.lift_cfg = rec, cfg, lift_cfg
         self.rate = turn_rate_dps(rec.pv_poses, rec.timestamps)
-        self._ctx = None
-        self._robust_context = robust_context
+        self._ctx = None   # the robust lift's context, built at the first smeared box
 
     def smeared(self, i: int) -> bool:
         """Whether the head turned faster than ``svoe_sharp_dps`` at PV frame ``i`` (unknown: no)."""
@@ -196,10 +194,11 @@ class _SharpEnrollment:
         """:func:`egograph.frontend.sharp_views.sharp_views` of the box (none, with the reason, when the
         recording has no depth or mesh to place it by)."""
         from egograph.frontend.sharp_views import SharpViews, sharp_views
+        from egograph.geometry.robust_lift import robust_context
 
         try:
             if self._ctx is None:
-                self._ctx = self._robust_context(self.rec, self.lift_cfg, [])
+                self._ctx = robust_context(self.rec, self.lift_cfg, [])
             return sharp_views(self.rec, i, box, shape, self.cfg, self.lift_cfg, self.rate, self._ctx)
         except (EgographError, OSError, ValueError) as err:
             return SharpViews([], [], f"no object point: {err}")
