@@ -597,7 +597,7 @@ the attribute docstrings under a constant or a dataclass field (``ANSWER_KINDS``
 discards as it does comments. Under 4 correcting the count in ``ANSWER_KINDS``'s docstring marked the
 24 tracking sections changed. 6: as 5, and a packaged front-end configuration (``frontend-*.yaml``: an
 operating point of ``egograph detect`` and of the trackers on its detections) counts only for sections
-that exercise ``egograph/frontend``, the only ones whose commands name it (``--config frontend-mvpe``).
+that exercise ``egograph/frontend``: only front-end sections name such a file (``--config frontend-mvpe``).
 Under 5 choosing ``frontend-svoe``'s operating point again (its ``graph`` and ``track`` score thresholds)
 marked every tracking section on simulated detections changed."""
 
